@@ -12,5 +12,8 @@ foreach(h ${headers})
   string(REPLACE "if(__elem_len > maxlen - pos) return -1;"
                  "if(__elem_len < 1 || __elem_len > maxlen - pos) return -1;"
                  text "${text}")
+  string(REGEX REPLACE "if\\(__([A-Za-z0-9_]+)_len__ > maxlen - pos\\) return -1;"
+                 "if(__\\1_len__ < 1 || __\\1_len__ > maxlen - pos) return -1;"
+                 text "${text}")
   file(WRITE "${h}" "${text}")
 endforeach()

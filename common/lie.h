@@ -23,6 +23,7 @@ using Mat4 = Eigen::Matrix4d;
 using Mat6 = Eigen::Matrix<double, 6, 6>;
 using Mat7 = Eigen::Matrix<double, 7, 7>;
 using Mat36 = Eigen::Matrix<double, 3, 6>;
+using Mat37 = Eigen::Matrix<double, 3, 7>;
 
 /// Skew-symmetric matrix: hat(a) * b = a x b.
 Mat3 hat(const Vec3& a);
@@ -90,12 +91,61 @@ class SE3 {
   /// Left Jacobian of SE(3), (v, w) ordering: Exp(xi + d) ~= Exp(J_l d) Exp(xi).
   static Mat6 leftJacobian(const Vec6& xi);
   static Mat6 rightJacobian(const Vec6& xi) { return leftJacobian(-xi); }
-  static Mat6 leftJacobianInverse(const Vec6& xi) { return leftJacobian(xi).inverse(); }
-  static Mat6 rightJacobianInverse(const Vec6& xi) { return rightJacobian(xi).inverse(); }
+  /// Closed form [[J^-1, -J^-1 Q J^-1], [0, J^-1]]; singular only at |w| = 2 pi.
+  static Mat6 leftJacobianInverse(const Vec6& xi);
+  static Mat6 rightJacobianInverse(const Vec6& xi) { return leftJacobianInverse(-xi); }
 
  private:
   SO3 R_;
   Vec3 t_;
+};
+
+/// Similarity transform p_a = s R p_b + t (scale s > 0), e.g. the alignment of
+/// a monocular trajectory to ground truth: T_gt_est.
+/// Tangent vectors are x = (v, w, sigma), sigma = log(s); Exp(x) has rotation
+/// Exp(w), scale exp(sigma) and translation W(sigma, w) v.
+class Sim3 {
+ public:
+  Sim3() : t_(Vec3::Zero()) {}
+  /// Throws std::invalid_argument unless scale is finite and > 0.
+  Sim3(const SO3& R, const Vec3& t, double scale);
+  /// The rigid transform T as a similarity of scale 1.
+  explicit Sim3(const SE3& T) : R_(T.so3()), t_(T.translation()) {}
+  /// From [[s R, t], [0, 1]]; s = cbrt(det) and R is projected onto SO(3).
+  /// Throws std::invalid_argument if the 3x3 block has det <= 0 or is not finite.
+  explicit Sim3(const Mat4& T);
+
+  static Sim3 exp(const Vec7& x);
+  /// Rotation angle in [0, pi].
+  Vec7 log() const;
+
+  Sim3 inverse() const;
+  Sim3 operator*(const Sim3& other) const;
+  Vec3 operator*(const Vec3& p) const { return scale_ * (R_ * p) + t_; }
+
+  /// p_a = s R p_b + t with optional Jacobians wrt a right perturbation
+  /// T * Exp(v, w, sigma) (3x7) and wrt p_b (3x3).
+  Vec3 transform(const Vec3& p, Mat37* H_pose = nullptr, Mat3* H_point = nullptr) const;
+
+  /// Moves a rigid pose into frame a: T_a_c from T_b_c. The rotation is
+  /// composed and the camera centre is transformed (scaled); frame c itself
+  /// stays metric, so the result is an SE(3) pose.
+  SE3 transformPose(const SE3& T_b_c) const;
+
+  /// Ad(T) = [[s R, hat(t) R, -t], [0, R, 0], [0, 0, 1]] for x = (v, w, sigma):
+  /// T Exp(x) T^-1 = Exp(Ad x).
+  Mat7 adjoint() const;
+
+  const SO3& so3() const { return R_; }
+  Mat3 rotation() const { return R_.matrix(); }
+  const Vec3& translation() const { return t_; }
+  double scale() const { return scale_; }
+  Mat4 matrix() const;
+
+ private:
+  SO3 R_;
+  Vec3 t_;
+  double scale_ = 1.0;
 };
 
 }  // namespace radslam

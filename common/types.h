@@ -52,12 +52,7 @@ struct Frame {
   double depth_wire_scale = 0;
 };
 
-enum class TrackingState : int8_t {
-  kInitializing = 0,
-  kTracking = 1,
-  kLost = 2,
-  kGroundTruth = 3
-};
+enum class TrackingState : int8_t { kInitializing = 0, kTracking = 1, kLost = 2, kGroundTruth = 3 };
 
 /// Channels POSE and GROUND_TRUTH.
 struct PoseStamped {
@@ -171,7 +166,13 @@ struct Status {
   std::vector<std::pair<std::string, double>> values;
 };
 
-enum class ControlCommand : int8_t { kStop = 0, kSave = 1, kReset = 2, kSnapshot = 3, kRepublish = 4 };
+enum class ControlCommand : int8_t {
+  kStop = 0,
+  kSave = 1,
+  kReset = 2,
+  kSnapshot = 3,
+  kRepublish = 4
+};
 
 /// Channel CONTROL.
 struct Control {

@@ -1,0 +1,217 @@
+#include "common/camera.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include <opencv2/calib3d.hpp>
+
+namespace radslam {
+namespace {
+
+std::string sizeString(int width, int height) {
+  return std::to_string(width) + "x" + std::to_string(height);
+}
+
+bool allZero(const std::vector<double>& values) {
+  return std::all_of(values.begin(), values.end(), [](double v) { return v == 0.0; });
+}
+
+// Fisheye (equidistant) input: the pinhole camera of size target whose every
+// pixel centre maps inside the source image. The border of the source is
+// undistorted densely and the largest axis-aligned rectangle inside it kept;
+// OpenCV's fisheye::estimateNewCameraMatrixForUndistortRectify looks only at the
+// four edge midpoints and does not guarantee this.
+cv::Matx33d innerPinholeForFisheye(const CameraModel& cam, const cv::Size& target) {
+  constexpr int kSamplesPerSide = 64;
+  const double w = cam.width - 1.0, h = cam.height - 1.0;  // outermost pixel centres
+  std::vector<cv::Point2d> left, right, top, bottom;
+  for (int i = 0; i < kSamplesPerSide; ++i) {
+    const double f = static_cast<double>(i) / (kSamplesPerSide - 1);
+    left.emplace_back(0.0, f * h);
+    right.emplace_back(w, f * h);
+    top.emplace_back(f * w, 0.0);
+    bottom.emplace_back(f * w, h);
+  }
+  const cv::Matx33d K = cameraMatrix(cam);
+  const cv::Mat D(cam.distortion, true);
+  const auto undistort = [&](const std::vector<cv::Point2d>& in) {
+    std::vector<cv::Point2d> out;
+    cv::fisheye::undistortPoints(in, out, K, D);
+    return out;
+  };
+  const double inf = std::numeric_limits<double>::infinity();
+  double x_min = -inf, x_max = inf, y_min = -inf, y_max = inf;
+  for (const cv::Point2d& p : undistort(left)) x_min = std::max(x_min, p.x);
+  for (const cv::Point2d& p : undistort(right)) x_max = std::min(x_max, p.x);
+  for (const cv::Point2d& p : undistort(top)) y_min = std::max(y_min, p.y);
+  for (const cv::Point2d& p : undistort(bottom)) y_max = std::min(y_max, p.y);
+  if (!(std::isfinite(x_min) && std::isfinite(x_max) && std::isfinite(y_min) &&
+        std::isfinite(y_max) && x_max > x_min && y_max > y_min)) {
+    throw std::invalid_argument(
+        "Undistorter: the equidistant camera's field of view cannot be mapped to a pinhole "
+        "image (too wide or bad coefficients)");
+  }
+  // Target pixel centres 0 and size-1 land on the rectangle's edges.
+  const double fx = (target.width - 1.0) / (x_max - x_min);
+  const double fy = (target.height - 1.0) / (y_max - y_min);
+  return cv::Matx33d(fx, 0, -fx * x_min, 0, fy, -fy * y_min, 0, 0, 1);
+}
+
+}  // namespace
+
+Eigen::Vector2d project(const CameraModel& cam, const Vec3& p_cam,
+                        Eigen::Matrix<double, 2, 3>* H_point) {
+  const double z_inv = 1.0 / p_cam.z();
+  const double x = p_cam.x() * z_inv, y = p_cam.y() * z_inv;
+  if (H_point) {
+    *H_point << cam.fx * z_inv, 0.0, -cam.fx * x * z_inv, 0.0, cam.fy * z_inv, -cam.fy * y * z_inv;
+  }
+  return Eigen::Vector2d(cam.fx * x + cam.cx, cam.fy * y + cam.cy);
+}
+
+Vec3 unproject(const CameraModel& cam, const Eigen::Vector2d& px, double depth) {
+  return Vec3((px.x() - cam.cx) / cam.fx * depth, (px.y() - cam.cy) / cam.fy * depth, depth);
+}
+
+CameraModel scaleCamera(const CameraModel& cam, int new_width, int new_height) {
+  if (cam.width <= 0 || cam.height <= 0) {
+    throw std::invalid_argument("scaleCamera: camera size " + sizeString(cam.width, cam.height) +
+                                " is not positive");
+  }
+  if (new_width <= 0 || new_height <= 0) {
+    throw std::invalid_argument("scaleCamera: target size " + sizeString(new_width, new_height) +
+                                " is not positive");
+  }
+  const double sx = static_cast<double>(new_width) / cam.width;
+  const double sy = static_cast<double>(new_height) / cam.height;
+  CameraModel out = cam;
+  out.width = new_width;
+  out.height = new_height;
+  out.fx = cam.fx * sx;
+  out.fy = cam.fy * sy;
+  out.cx = (cam.cx + 0.5) * sx - 0.5;
+  out.cy = (cam.cy + 0.5) * sy - 0.5;
+  return out;
+}
+
+cv::Matx33d cameraMatrix(const CameraModel& cam) {
+  return cv::Matx33d(cam.fx, 0, cam.cx, 0, cam.fy, cam.cy, 0, 0, 1);
+}
+
+void validateCamera(const CameraModel& cam) {
+  if (cam.width <= 0 || cam.height <= 0) {
+    throw std::invalid_argument("camera: image size " + sizeString(cam.width, cam.height) +
+                                " is not positive");
+  }
+  if (!(std::isfinite(cam.fx) && std::isfinite(cam.fy) && cam.fx > 0 && cam.fy > 0)) {
+    throw std::invalid_argument("camera: focal lengths fx=" + std::to_string(cam.fx) +
+                                " fy=" + std::to_string(cam.fy) + " must be finite and > 0");
+  }
+  if (!(std::isfinite(cam.cx) && std::isfinite(cam.cy))) {
+    throw std::invalid_argument("camera: principal point is not finite");
+  }
+  for (double k : cam.distortion) {
+    if (!std::isfinite(k)) throw std::invalid_argument("camera: distortion coefficient not finite");
+  }
+  const size_t n = cam.distortion.size();
+  switch (cam.type) {
+    case CameraModel::Type::kPinhole:
+      if (!allZero(cam.distortion)) {
+        throw std::invalid_argument(
+            "camera: pinhole model with non-zero distortion coefficients (use RadTan)");
+      }
+      break;
+    case CameraModel::Type::kRadTan:
+      if (n != 0 && n != 4 && n != 5) {
+        throw std::invalid_argument(
+            "camera: RadTan needs 4 or 5 coefficients (k1 k2 p1 p2 [k3]), got " +
+            std::to_string(n));
+      }
+      break;
+    case CameraModel::Type::kEquidistant:
+      if (n != 4) {
+        throw std::invalid_argument("camera: Equidistant needs 4 coefficients (k1 k2 k3 k4), got " +
+                                    std::to_string(n));
+      }
+      break;
+    default:
+      throw std::invalid_argument("camera: unknown model type " +
+                                  std::to_string(static_cast<int>(cam.type)));
+  }
+}
+
+Undistorter::Undistorter(const CameraModel& source, int target_width, int target_height)
+    : source_(source) {
+  validateCamera(source);
+  if (target_width <= 0 || target_height <= 0) {
+    throw std::invalid_argument("Undistorter: target size " +
+                                sizeString(target_width, target_height) + " is not positive");
+  }
+  const bool distorted = source.type == CameraModel::Type::kEquidistant ||
+                         (source.type == CameraModel::Type::kRadTan && !allZero(source.distortion));
+  if (!distorted) {
+    target_ = scaleCamera(source, target_width, target_height);
+    target_.type = CameraModel::Type::kPinhole;
+    target_.distortion.clear();
+    pure_resize_ = true;
+    return;
+  }
+
+  const cv::Size source_size(source.width, source.height);
+  const cv::Size target_size(target_width, target_height);
+  const cv::Matx33d K = cameraMatrix(source);
+  const cv::Mat D(source.distortion, true);
+  cv::Matx33d K_new;
+  if (source.type == CameraModel::Type::kRadTan) {
+    // alpha = 0: only valid pixels in the output.
+    K_new = cv::getOptimalNewCameraMatrix(K, D, source_size, 0.0, target_size);
+    cv::initUndistortRectifyMap(K, D, cv::Matx33d::eye(), K_new, target_size, CV_32FC1, map_x_,
+                                map_y_);
+  } else {
+    K_new = innerPinholeForFisheye(source, target_size);
+    cv::fisheye::initUndistortRectifyMap(K, D, cv::Matx33d::eye(), K_new, target_size, CV_32FC1,
+                                         map_x_, map_y_);
+  }
+  cv::convertMaps(map_x_, map_y_, map_fixed_, map_interp_, CV_16SC2);
+  target_.width = target_width;
+  target_.height = target_height;
+  target_.type = CameraModel::Type::kPinhole;
+  target_.fx = K_new(0, 0);
+  target_.fy = K_new(1, 1);
+  target_.cx = K_new(0, 2);
+  target_.cy = K_new(1, 2);
+  target_.distortion.clear();
+}
+
+cv::Mat Undistorter::apply(const cv::Mat& image, int interpolation) const {
+  if (image.empty()) throw std::invalid_argument("Undistorter::apply: empty image");
+  if (image.cols != source_.width || image.rows != source_.height) {
+    throw std::invalid_argument("Undistorter::apply: image is " +
+                                sizeString(image.cols, image.rows) + " but the camera is " +
+                                sizeString(source_.width, source_.height));
+  }
+  cv::Mat out;
+  if (pure_resize_) {
+    if (target_.width == source_.width && target_.height == source_.height) return image.clone();
+    // INTER_NEAREST in cv::resize picks floor(dst * scale), off the pixel-centre
+    // convention of scaleCamera; the _EXACT variant samples the nearest centre.
+    const int resize_interpolation =
+        interpolation == cv::INTER_NEAREST ? cv::INTER_NEAREST_EXACT : interpolation;
+    cv::resize(image, out, cv::Size(target_.width, target_.height), 0, 0, resize_interpolation);
+    return out;
+  }
+  // Edge pixels may sample up to ~1 px past the outermost source pixel centre:
+  // replicate rather than blend with black.
+  if (interpolation == cv::INTER_NEAREST || interpolation == cv::INTER_NEAREST_EXACT) {
+    cv::remap(image, out, map_x_, map_y_, cv::INTER_NEAREST, cv::BORDER_REPLICATE);
+  } else {
+    cv::remap(image, out, map_fixed_, map_interp_, interpolation, cv::BORDER_REPLICATE);
+  }
+  return out;
+}
+
+}  // namespace radslam

@@ -1,0 +1,50 @@
+// Standard LCM log files (the format lcm-logger writes and lcm-logplayer
+// replays), behind plain types so callers need no LCM headers.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace radslam {
+
+struct LogEvent {
+  int64_t utime = 0;  // receive time recorded in the log, microseconds
+  std::string channel;
+  std::vector<uint8_t> data;
+};
+
+class LogReader {
+ public:
+  /// Throws std::runtime_error naming the file when it cannot be opened.
+  explicit LogReader(const std::string& path);
+  ~LogReader();
+  /// Next event, or nullopt at the end (a truncated last event also ends it).
+  std::optional<LogEvent> next();
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+class LogWriter {
+ public:
+  /// Creates (truncates) the file; throws std::runtime_error when it cannot.
+  explicit LogWriter(const std::string& path);
+  ~LogWriter();
+  void write(int64_t utime, const std::string& channel, const uint8_t* data, size_t size);
+  /// Pushes buffered events to the kernel so a killed process leaves them.
+  void flush();
+  int64_t eventsWritten() const { return events_; }
+  int64_t bytesWritten() const { return bytes_; }
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+  int64_t events_ = 0;
+  int64_t bytes_ = 0;
+};
+
+}  // namespace radslam

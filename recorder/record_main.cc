@@ -1,0 +1,156 @@
+// radslam-record: records every channel into a standard LCM log and, at the
+// end (Ctrl-C, SIGTERM or CONTROL STOP), exports the run folder.
+#include <unistd.h>
+
+#include <chrono>
+#include <filesystem>
+#include <iostream>
+
+#include "common/bus.h"
+#include "common/cli.h"
+#include "common/lcm_log.h"
+#include "common/params.h"
+#include "common/process_stats.h"
+#include "recorder/run_recorder.h"
+
+namespace radslam {
+namespace {
+
+const char* kUsage = R"(usage: radslam-record --out DIR [options]
+  --out DIR        run folder (created): run.lcmlog, trajectories, summary, ...
+  --url URL        LCM URL (default: LCM's default)
+  --prefix P       channel prefix
+  --config FILE    YAML with a "recorder" section (alignment, mode, max_dt_s, ...)
+  --mode M         mono | rgbd | stereo (chooses the evaluation alignment)
+  --progress       print a live progress line on stdout
+)";
+
+RecorderParams loadParams(const std::string& path, const std::string& mode) {
+  RecorderParams p;
+  ParamReader reader(path, "recorder");
+  if (!mode.empty()) reader.addOverride("mode=" + mode);
+  reader.get("alignment", &p.alignment);
+  reader.get("mode", &p.mode);
+  reader.get("max_dt_s", &p.max_dt_s);
+  reader.get("export_keyframe_exr", &p.export_keyframe_exr);
+  reader.finish();
+  std::cerr << "radslam-record: parameters from " << reader.source() << "\n" << reader.dump();
+  return p;
+}
+
+template <class T>
+bool decodeOrWarn(const std::string& channel, const uint8_t* data, size_t size, T* msg) {
+  std::string error;
+  if (decode(data, size, msg, &error)) return true;
+  std::cerr << "radslam-record: warning: channel " << channel << ": " << error
+            << " (recorded, not exported)\n";
+  return false;
+}
+
+int run(int argc, char** argv) {
+  CommandLine cli(argc, argv, kUsage);
+  if (cli.helpRequested()) {
+    std::cout << kUsage;
+    return 0;
+  }
+  const std::string out_dir = cli.get("out", "");
+  if (out_dir.empty()) throw std::runtime_error("--out is required\n" + cli.usage());
+  const std::string config = cli.get("config", "");
+  const std::string mode = cli.get("mode", "");
+  const std::string url = cli.get("url", "");
+  const std::string prefix = cli.get("prefix", "");
+  const bool progress = cli.getBool("progress", false);
+  cli.finish();
+  const RecorderParams params = loadParams(config, mode);
+
+  installStopSignals();
+  std::filesystem::create_directories(out_dir);
+  const std::string log_path = out_dir + "/run.lcmlog";
+  LogWriter log(log_path);
+  Bus bus(url, prefix, "recorder");
+  RunRecorder recorder(params);
+  StatusReporter reporter("recorder");
+
+  auto is = [&](const std::string& channel, const char* base) {
+    return channel == bus.fullChannel(base);
+  };
+  bus.subscribeRaw(
+      ".*", [&](const std::string& ch, int64_t recv_utime, const uint8_t* data, size_t size) {
+        BusyTimer::Scope busy(reporter.busy());
+        log.write(recv_utime, ch, data, size);
+        reporter.itemHandled();
+        if (is(ch, channel::kCamera)) {
+          recorder.onCameraFrame(recv_utime);
+        } else if (is(ch, channel::kPose)) {
+          PoseStamped pose;
+          if (decodeOrWarn(ch, data, size, &pose)) recorder.onPose(pose);
+        } else if (is(ch, channel::kGroundTruth)) {
+          PoseStamped pose;
+          if (decodeOrWarn(ch, data, size, &pose)) recorder.onGroundTruth(pose);
+        } else if (is(ch, channel::kKeyframe)) {
+          Keyframe keyframe;
+          if (decodeOrWarn(ch, data, size, &keyframe)) recorder.onKeyframe(keyframe);
+        } else if (is(ch, channel::kObjects)) {
+          ObjectList objects;
+          if (decodeOrWarn(ch, data, size, &objects)) recorder.onObjects(objects);
+        } else if (is(ch, channel::kGroundTruthObjects)) {
+          ObjectList objects;
+          if (decodeOrWarn(ch, data, size, &objects)) recorder.onGroundTruthObjects(objects);
+        } else if (is(ch, channel::kStatus)) {
+          Status status;
+          if (decodeOrWarn(ch, data, size, &status)) recorder.onStatus(status);
+        } else if (is(ch, channel::kControl)) {
+          Control control;
+          if (decodeOrWarn(ch, data, size, &control) && control.command == ControlCommand::kStop &&
+              control.target == "recorder")
+            requestStop();
+        }
+      });
+
+  const bool tty = isatty(STDOUT_FILENO);
+  const auto start = std::chrono::steady_clock::now();
+  auto elapsed = [&] {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  };
+  double last_flush = 0, last_line = 0, last_status = 0;
+  while (!stopRequested()) {
+    if (bus.handle(100) < 0) {
+      // A file:// URL ends with its log: export what it held.
+      if (url.rfind("file://", 0) == 0) break;
+      throw std::runtime_error("LCM handle failed on " + url);
+    }
+    const double now = elapsed();
+    if (now - last_flush > 1.0) {  // a killed recorder keeps all but the last second
+      log.flush();
+      last_flush = now;
+    }
+    if (now - last_status > 0.5) {
+      reporter.setState(ProcessState::kRunning);
+      reporter.setValue("log_events", static_cast<double>(log.eventsWritten()));
+      reporter.setValue("log_mb", static_cast<double>(log.bytesWritten()) / 1e6);
+      bus.publish(channel::kStatus, reporter.make());
+      last_status = now;
+    }
+    if (progress && now - last_line > (tty ? 0.25 : 5.0)) {
+      std::cout << (tty ? "\r\033[K" : "") << recorder.progressLine(now) << (tty ? "" : "\n")
+                << std::flush;
+      last_line = now;
+    }
+  }
+  // Drain what is already queued, then export.
+  while (bus.handle(0) > 0) {
+  }
+  log.flush();
+  if (progress) std::cout << (tty ? "\r\033[K" : "") << recorder.progressLine(elapsed()) << "\n";
+  const std::string summary =
+      recorder.exportRun(out_dir, elapsed(), log.eventsWritten(), log.bytesWritten());
+  std::cout << summary << "Run folder: " << out_dir << "\n" << std::flush;
+  return 0;
+}
+
+}  // namespace
+}  // namespace radslam
+
+int main(int argc, char** argv) {
+  return radslam::runMain("radslam-record", radslam::run, argc, argv);
+}

@@ -1,0 +1,296 @@
+#include "recorder/run_recorder.h"
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <iomanip>
+#include <sstream>
+#include <stdexcept>
+
+#include "common/evaluation.h"
+#include "common/exr_io.h"
+
+namespace radslam {
+namespace {
+
+namespace fs = std::filesystem;
+
+const char* stateName(ProcessState state) {
+  switch (state) {
+    case ProcessState::kStarting:
+      return "starting";
+    case ProcessState::kRunning:
+      return "running";
+    case ProcessState::kIdle:
+      return "idle";
+    case ProcessState::kDone:
+      return "done";
+    case ProcessState::kError:
+      return "error";
+  }
+  return "?";
+}
+
+double valueOf(const Status& status, const std::string& key, double fallback) {
+  for (const auto& [k, v] : status.values)
+    if (k == key) return v;
+  return fallback;
+}
+
+// Timestamps name files: seconds with 6 decimals, as in the dataset's clock.
+std::string stampName(int64_t utime) {
+  char buffer[64];
+  std::snprintf(buffer, sizeof(buffer), "%.6f", static_cast<double>(utime) * 1e-6);
+  return buffer;
+}
+
+std::string jsonEscape(const std::string& text) {
+  std::string out;
+  for (char c : text) {
+    if (c == '"' || c == '\\') {
+      out += '\\';
+      out += c;
+    } else if (static_cast<unsigned char>(c) < 0x20) {
+      char buffer[8];
+      std::snprintf(buffer, sizeof(buffer), "\\u%04x", c);
+      out += buffer;
+    } else {
+      out += c;
+    }
+  }
+  return out;
+}
+
+std::string jsonNumber(double value) {
+  if (!std::isfinite(value)) return "null";
+  std::ostringstream out;
+  out << std::setprecision(10) << value;
+  return out.str();
+}
+
+std::string jsonKey(const std::string& key) {
+  std::string out;
+  for (char c : key) out += std::isalnum(static_cast<unsigned char>(c)) ? c : '_';
+  return out;
+}
+
+void writeObjectTracks(const std::string& path, const std::vector<ObjectList>& lists) {
+  std::ofstream out(path);
+  if (!out) throw std::runtime_error("cannot write " + path);
+  out << "# t object_id class_id tx ty tz qx qy qz qw vx vy vz wx wy wz joint parent\n";
+  out << std::setprecision(9);
+  for (const ObjectList& list : lists) {
+    for (const TrackedObject& o : list.objects) {
+      const Eigen::Quaterniond q = o.T_world_object.quaternion();
+      const Vec3& t = o.T_world_object.translation();
+      out << static_cast<double>(list.header.utime) * 1e-6 << ' ' << o.object_id << ' '
+          << o.class_id << ' ' << t.x() << ' ' << t.y() << ' ' << t.z() << ' ' << q.x() << ' '
+          << q.y() << ' ' << q.z() << ' ' << q.w();
+      for (int k = 0; k < 6; ++k) out << ' ' << o.twist[k];
+      out << ' ' << static_cast<int>(o.joint_type) << ' ' << o.parent_cluster << '\n';
+    }
+  }
+}
+
+}  // namespace
+
+RunRecorder::RunRecorder(RecorderParams params) : params_(std::move(params)) {}
+
+void RunRecorder::onCameraFrame(int64_t) { ++camera_frames_; }
+
+void RunRecorder::onPose(const PoseStamped& pose) { poses_[pose.frame_index] = pose; }
+
+void RunRecorder::onGroundTruth(const PoseStamped& pose) {
+  ground_truth_[pose.header.utime] = pose;
+}
+
+void RunRecorder::onKeyframe(const Keyframe& keyframe) {
+  ++keyframe_messages_;
+  auto it = keyframes_.find(keyframe.keyframe_id);
+  if (it == keyframes_.end() || it->second.version <= keyframe.version)
+    keyframes_[keyframe.keyframe_id] = keyframe;
+}
+
+void RunRecorder::onObjects(const ObjectList& objects) { objects_.push_back(objects); }
+
+void RunRecorder::onGroundTruthObjects(const ObjectList& objects) {
+  ground_truth_objects_.push_back(objects);
+}
+
+void RunRecorder::onStatus(const Status& status) { statuses_[status.process] = status; }
+
+Trajectory RunRecorder::trajectory() const {
+  Trajectory out;
+  for (const auto& [index, pose] : poses_) {
+    if (pose.state != TrackingState::kTracking) continue;
+    out.push_back({static_cast<double>(pose.header.utime) * 1e-6, pose.T_world_cam});
+  }
+  return out;
+}
+
+Trajectory RunRecorder::keyframeTrajectory() const {
+  Trajectory out;
+  for (const auto& [id, keyframe] : keyframes_)
+    out.push_back({static_cast<double>(keyframe.header.utime) * 1e-6, keyframe.T_world_cam});
+  std::sort(out.begin(), out.end(),
+            [](const StampedPose& a, const StampedPose& b) { return a.t < b.t; });
+  return out;
+}
+
+Trajectory RunRecorder::groundTruth() const {
+  Trajectory out;
+  for (const auto& [utime, pose] : ground_truth_)
+    out.push_back({static_cast<double>(utime) * 1e-6, pose.T_world_cam});
+  return out;
+}
+
+std::string RunRecorder::progressLine(double wall_s) const {
+  std::ostringstream line;
+  line << std::fixed << std::setprecision(1) << wall_s << " s | frames " << camera_frames_;
+  auto player = statuses_.find("player");
+  if (player != statuses_.end()) {
+    const double total = valueOf(player->second, "frames_total", -1);
+    if (total > 0) line << "/" << static_cast<int64_t>(total);
+  }
+  line << " | poses " << poses_.size() << " | keyframes " << keyframes_.size();
+  for (const auto& [name, status] : statuses_) {
+    if (name == "player" || name == "recorder") continue;
+    line << " | " << name << " " << std::setprecision(1) << status.fps << " fps";
+    if (status.state == ProcessState::kError) line << " ERROR";
+  }
+  return line.str();
+}
+
+std::string RunRecorder::exportRun(const std::string& out_dir, double wall_s, int64_t log_events,
+                                   int64_t log_bytes) const {
+  fs::create_directories(out_dir);
+  const Trajectory estimate = trajectory();
+  const Trajectory keyframe_poses = keyframeTrajectory();
+  const Trajectory truth = groundTruth();
+  writeTumTrajectory(out_dir + "/trajectory.txt", estimate);
+  writeTumTrajectory(out_dir + "/keyframes.txt", keyframe_poses);
+  if (!truth.empty()) writeTumTrajectory(out_dir + "/groundtruth.txt", truth);
+  if (!objects_.empty()) writeObjectTracks(out_dir + "/objects.txt", objects_);
+  if (!ground_truth_objects_.empty())
+    writeObjectTracks(out_dir + "/objects_groundtruth.txt", ground_truth_objects_);
+
+  int exr_written = 0;
+  if (params_.export_keyframe_exr) {
+    for (const auto& [id, keyframe] : keyframes_) {
+      if (keyframe.depth.empty()) continue;
+      fs::create_directories(out_dir + "/keyframes");
+      std::vector<std::pair<std::string, cv::Mat>> channels = {{"depth", keyframe.depth}};
+      if (!keyframe.depth_var.empty()) {
+        cv::Mat sigma;
+        cv::sqrt(cv::max(keyframe.depth_var, 0.0), sigma);
+        channels.emplace_back("sigma", sigma);
+      }
+      if (!keyframe.inv_depth.empty()) channels.emplace_back("inv_depth", keyframe.inv_depth);
+      if (!keyframe.inv_depth_var.empty())
+        channels.emplace_back("inv_depth_var", keyframe.inv_depth_var);
+      writeExr(out_dir + "/keyframes/" + stampName(keyframe.header.utime) + ".exr", channels);
+      ++exr_written;
+    }
+  }
+
+  std::string alignment = params_.alignment;
+  if (alignment == "auto") alignment = params_.mode == "mono" ? "sim3" : "se3";
+  bool evaluated = false;
+  TrajectoryErrors errors;
+  std::string eval_note = "no ground truth";
+  if (!truth.empty() && estimate.size() >= 3) {
+    try {
+      errors = evaluateTrajectory(estimate, truth, alignment, params_.max_dt_s);
+      evaluated = true;
+    } catch (const std::exception& e) {
+      eval_note = e.what();
+    }
+  } else if (!truth.empty()) {
+    eval_note = "fewer than 3 estimated poses";
+  }
+
+  // summary.json
+  std::ostringstream json;
+  json << "{\n";
+  json << "  \"mode\": \"" << jsonEscape(params_.mode) << "\",\n";
+  json << "  \"frames\": " << camera_frames_ << ",\n";
+  json << "  \"frames_with_pose\": " << estimate.size() << ",\n";
+  json << "  \"keyframes\": " << keyframes_.size() << ",\n";
+  json << "  \"keyframe_messages\": " << keyframe_messages_ << ",\n";
+  json << "  \"wall_s\": " << jsonNumber(wall_s) << ",\n";
+  json << "  \"log_events\": " << log_events << ",\n";
+  json << "  \"log_bytes\": " << log_bytes << ",\n";
+  json << "  \"ate_alignment\": \"" << alignment << "\",\n";
+  if (evaluated) {
+    json << "  \"ate_rmse_m\": " << jsonNumber(errors.ate_rmse_m) << ",\n";
+    json << "  \"ate_matched\": " << errors.matched << ",\n";
+    json << "  \"rot_rmse_deg\": " << jsonNumber(errors.rot_rmse_deg) << ",\n";
+    json << "  \"rpe_trans_m\": " << jsonNumber(errors.rpe_trans_m) << ",\n";
+    json << "  \"rpe_rot_deg\": " << jsonNumber(errors.rpe_rot_deg) << ",\n";
+    json << "  \"scale\": " << jsonNumber(errors.scale) << ",\n";
+  } else {
+    json << "  \"ate_rmse_m\": null,\n";
+    json << "  \"evaluation\": \"" << jsonEscape(eval_note) << "\",\n";
+  }
+  bool first = true;
+  json << "  \"processes\": [";
+  for (const auto& [name, status] : statuses_) {
+    json << (first ? "\"" : ", \"") << jsonEscape(name) << "\"";
+    first = false;
+  }
+  json << "]";
+  for (const auto& [name, status] : statuses_) {
+    json << ",\n  \"" << jsonKey(name) << "\": {\"fps\": " << jsonNumber(status.fps)
+         << ", \"busy_s\": " << jsonNumber(status.busy_s) << ", \"items\": " << status.items_handled
+         << ", \"peak_rss_mb\": " << jsonNumber(status.peak_rss_mb) << ", \"state\": \""
+         << stateName(status.state) << "\", \"last_error\": \"" << jsonEscape(status.last_error)
+         << "\"";
+    for (const auto& [key, value] : status.values)
+      json << ", \"" << jsonKey(key) << "\": " << jsonNumber(value);
+    json << "}";
+  }
+  json << "\n}\n";
+  {
+    std::ofstream out(out_dir + "/summary.json");
+    if (!out) throw std::runtime_error("cannot write " + out_dir + "/summary.json");
+    out << json.str();
+  }
+
+  // summary.txt: the result table printed at the end of a run.
+  std::ostringstream text;
+  text << std::fixed;
+  text << "radslam run summary (" << params_.mode << ")\n";
+  text << "  frames played          " << camera_frames_ << "\n";
+  text << "  frames with a pose     " << estimate.size() << "\n";
+  text << "  keyframes              " << keyframes_.size() << " (" << exr_written
+       << " depth/sigma EXR)\n";
+  text << "  wall time              " << std::setprecision(1) << wall_s << " s\n";
+  if (evaluated) {
+    text << "  ATE RMSE (" << alignment << ")      " << std::setprecision(4) << errors.ate_rmse_m
+         << " m over " << errors.matched << " poses\n";
+    text << "  orientation error      " << std::setprecision(3) << errors.rot_rmse_deg
+         << " deg (rotation-only alignment)\n";
+    text << "  RPE                    " << std::setprecision(4) << errors.rpe_trans_m << " m, "
+         << std::setprecision(3) << errors.rpe_rot_deg << " deg per frame\n";
+  } else {
+    text << "  evaluation             " << eval_note << "\n";
+  }
+  text << "  LCM log                " << log_events << " messages, " << std::setprecision(1)
+       << static_cast<double>(log_bytes) / 1e6 << " MB\n";
+  text << "  process     state      fps      busy s   peak RSS MB\n";
+  for (const auto& [name, status] : statuses_) {
+    char row[160];
+    std::snprintf(row, sizeof(row), "  %-11s %-9s %7.1f %9.1f %11.1f\n", name.c_str(),
+                  stateName(status.state), status.fps, status.busy_s, status.peak_rss_mb);
+    text << row;
+  }
+  {
+    std::ofstream out(out_dir + "/summary.txt");
+    if (!out) throw std::runtime_error("cannot write " + out_dir + "/summary.txt");
+    out << text.str();
+  }
+  return text.str();
+}
+
+}  // namespace radslam

@@ -1,0 +1,74 @@
+// Collects what a run publishes (poses, keyframes, objects, statuses, ground
+// truth) and exports the run folder: trajectories, keyframe depth and sigma as
+// OpenEXR, object tracks, evaluation, summary.json and summary.txt. The core of
+// radslam-record; the LCM log itself is written by the bus adapter side.
+#pragma once
+
+#include <cstdint>
+#include <map>
+#include <string>
+#include <vector>
+
+#include "common/trajectory.h"
+#include "common/types.h"
+
+namespace radslam {
+
+struct RecorderParams {
+  /// Trajectory alignment for evaluation: "sim3", "se3", "none", or "auto"
+  /// (sim3 unless the run says it is metric: mode rgbd or stereo).
+  std::string alignment = "auto";
+  std::string mode = "mono";  // mono | rgbd | stereo (for "auto" and the summary)
+  double max_dt_s = 0.02;     // timestamp association tolerance for evaluation
+  bool export_keyframe_exr = true;
+};
+
+struct ProcessSummary {
+  std::string process;
+  double fps = 0;
+  double busy_s = 0;
+  int64_t items = 0;
+  double peak_rss_mb = 0;
+  std::string state;
+  std::string last_error;
+  std::vector<std::pair<std::string, double>> values;
+};
+
+class RunRecorder {
+ public:
+  explicit RunRecorder(RecorderParams params);
+
+  void onCameraFrame(int64_t utime);
+  void onPose(const PoseStamped& pose);
+  void onGroundTruth(const PoseStamped& pose);
+  void onKeyframe(const Keyframe& keyframe);
+  void onObjects(const ObjectList& objects);
+  void onGroundTruthObjects(const ObjectList& objects);
+  void onStatus(const Status& status);
+
+  /// One line for the terminal: frames, rates, keyframes, map state.
+  std::string progressLine(double wall_s) const;
+
+  /// Writes the run folder (created if needed); returns summary.txt's text.
+  /// log_events/log_bytes describe the LCM log written alongside.
+  std::string exportRun(const std::string& out_dir, double wall_s, int64_t log_events,
+                        int64_t log_bytes) const;
+
+  int64_t cameraFrames() const { return camera_frames_; }
+  Trajectory trajectory() const;
+  Trajectory keyframeTrajectory() const;
+  Trajectory groundTruth() const;
+
+ private:
+  RecorderParams params_;
+  int64_t camera_frames_ = 0;
+  std::map<int64_t, PoseStamped> poses_;         // latest per frame index
+  std::map<int64_t, PoseStamped> ground_truth_;  // by utime
+  std::map<int32_t, Keyframe> keyframes_;        // latest version per id
+  int64_t keyframe_messages_ = 0;
+  std::vector<ObjectList> objects_;
+  std::vector<ObjectList> ground_truth_objects_;
+  std::map<std::string, Status> statuses_;  // latest per process
+};
+
+}  // namespace radslam

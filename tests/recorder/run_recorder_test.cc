@@ -1,0 +1,102 @@
+// RunRecorder exports: trajectories, keyframe EXR, summary with evaluation.
+#include "recorder/run_recorder.h"
+
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "common/exr_io.h"
+
+namespace radslam {
+namespace {
+
+std::string readFile(const std::string& path) {
+  std::ifstream in(path);
+  std::stringstream text;
+  text << in.rdbuf();
+  return text.str();
+}
+
+SE3 groundTruthPose(int k) {
+  const double s = 0.1 * k;
+  return SE3(SO3::exp(Vec3(0.05 * std::sin(s), 0.1 * s, 0.02 * k)),
+             Vec3(std::cos(s), 0.3 * std::sin(2 * s), 0.05 * k));
+}
+
+TEST(RunRecorderTest, ExportsTrajectoriesKeyframesAndEvaluation) {
+  RecorderParams params;
+  params.mode = "mono";
+  RunRecorder recorder(params);
+  // Monocular estimate = ground truth seen through an unknown similarity.
+  const SE3 T_est_world(SO3::exp(Vec3(0.3, -0.2, 0.1)), Vec3(1, 2, 3));
+  const double scale = 0.5;
+  for (int k = 0; k < 30; ++k) {
+    const int64_t utime = 1'000'000 + k * 33'333;
+    recorder.onCameraFrame(utime);
+    PoseStamped gt;
+    gt.header.utime = utime;
+    gt.frame_index = k;
+    gt.state = TrackingState::kGroundTruth;
+    gt.T_world_cam = groundTruthPose(k);
+    recorder.onGroundTruth(gt);
+    PoseStamped est = gt;
+    est.state = TrackingState::kTracking;
+    const SE3 T = T_est_world * gt.T_world_cam;
+    est.T_world_cam = SE3(T.so3(), scale * T.translation());
+    recorder.onPose(est);
+  }
+  // A keyframe sent twice: the later version wins.
+  Keyframe keyframe;
+  keyframe.header.utime = 1'000'000;
+  keyframe.keyframe_id = 0;
+  keyframe.depth = cv::Mat(4, 5, CV_32F, cv::Scalar(2.0f));
+  keyframe.depth_var = cv::Mat(4, 5, CV_32F, cv::Scalar(0.04f));
+  recorder.onKeyframe(keyframe);
+  keyframe.version = 1;
+  keyframe.depth.setTo(3.0f);
+  recorder.onKeyframe(keyframe);
+  Status tracker;
+  tracker.process = "tracker";
+  tracker.fps = 42;
+  tracker.peak_rss_mb = 100;
+  tracker.values = {{"window", 8}};
+  recorder.onStatus(tracker);
+
+  const std::string out = ::testing::TempDir() + "/run_recorder_test";
+  std::filesystem::remove_all(out);
+  const std::string summary = recorder.exportRun(out, 1.5, 10, 1000);
+  EXPECT_NE(summary.find("ATE RMSE (sim3)"), std::string::npos) << summary;
+
+  EXPECT_EQ(readTumTrajectory(out + "/trajectory.txt").size(), 30u);
+  EXPECT_EQ(readTumTrajectory(out + "/groundtruth.txt").size(), 30u);
+  EXPECT_EQ(readTumTrajectory(out + "/keyframes.txt").size(), 1u);
+  const cv::Mat depth = readExrChannel(out + "/keyframes/1.000000.exr", "depth");
+  EXPECT_FLOAT_EQ(depth.at<float>(0, 0), 3.0f);
+  const cv::Mat sigma = readExrChannel(out + "/keyframes/1.000000.exr", "sigma");
+  EXPECT_NEAR(sigma.at<float>(3, 4), 0.2f, 1e-6);
+
+  const std::string json = readFile(out + "/summary.json");
+  for (const char* key : {"\"ate_rmse_m\"", "\"ate_alignment\": \"sim3\"", "\"rpe_trans_m\"",
+                          "\"rpe_rot_deg\"", "\"frames\": 30", "\"keyframes\": 1", "\"wall_s\"",
+                          "\"tracker\": {\"fps\": 42", "\"peak_rss_mb\": 100"}) {
+    EXPECT_NE(json.find(key), std::string::npos) << key << " missing in\n" << json;
+  }
+  // Sim3 alignment removes the similarity exactly.
+  const size_t at = json.find("\"ate_rmse_m\": ");
+  EXPECT_LT(std::stod(json.substr(at + 14)), 1e-6);
+}
+
+TEST(RunRecorderTest, SummaryWithoutGroundTruthSaysSo) {
+  RunRecorder recorder(RecorderParams{});
+  recorder.onCameraFrame(0);
+  const std::string out = ::testing::TempDir() + "/run_recorder_test_nogt";
+  std::filesystem::remove_all(out);
+  const std::string summary = recorder.exportRun(out, 0.1, 1, 10);
+  EXPECT_NE(summary.find("no ground truth"), std::string::npos) << summary;
+  EXPECT_NE(readFile(out + "/summary.json").find("\"ate_rmse_m\": null"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace radslam
