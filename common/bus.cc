@@ -3,6 +3,7 @@
 #include "common/bus.h"
 
 #include <atomic>
+#include <cerrno>
 #include <cstdint>
 #include <cstdio>
 #include <exception>
@@ -171,7 +172,10 @@ int Bus::handle(int timeout_ms) {
   if (timeout_ms < 0) {
     first = impl_->lcm.handle() == 0 ? 1 : -1;
   } else {
+    errno = 0;
     first = impl_->lcm.handleTimeout(timeout_ms);
+    // A signal (Ctrl-C, SIGTERM) interrupting the wait is not a bus error.
+    if (first < 0 && errno == EINTR) first = 0;
   }
   int handled = first > 0 ? 1 : 0;
   while (first > 0 && !impl_->handler_error && handled < kMaxBatch &&

@@ -116,7 +116,7 @@ int run(int argc, char** argv) {
   while (!stopRequested()) {
     if (bus.handle(100) < 0) {
       // A file:// URL ends with its log: export what it held.
-      if (url.rfind("file://", 0) == 0) break;
+      if (url.rfind("file://", 0) == 0 || stopRequested()) break;
       throw std::runtime_error("LCM handle failed on " + url);
     }
     const double now = elapsed();
@@ -141,6 +141,8 @@ int run(int argc, char** argv) {
   while (bus.handle(0) > 0) {
   }
   log.flush();
+  reporter.setState(ProcessState::kDone);
+  recorder.onStatus(reporter.make());
   if (progress) std::cout << (tty ? "\r\033[K" : "") << recorder.progressLine(elapsed()) << "\n";
   const std::string summary =
       recorder.exportRun(out_dir, elapsed(), log.eventsWritten(), log.bytesWritten());
