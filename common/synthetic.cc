@@ -17,7 +17,7 @@ namespace radslam {
 namespace {
 
 constexpr double kNear = 0.05;         // m: surfaces closer than this (along z) are not rendered
-constexpr int kTile = 16;              // pixels: screen tiles for box culling
+constexpr int kTile = 8;               // pixels: screen tiles for box culling
 constexpr double kDepthScale = 0.001;  // m per unit in the depth PNGs
 
 /// A box prepared for one render: the camera ray in the box owner's frame (world for static
@@ -28,7 +28,8 @@ struct RayBox {
   Mat3 M;
   Vec3 origin;
   Mat3 R_world_owner;
-  double z_min = 0;  // m: no point of the box is nearer along the camera's z
+  double z_min = 0;                    // m: no point of the box is nearer along the camera's z
+  int x0 = 0, y0 = 0, x1 = 0, y1 = 0;  // pixels: screen rectangle [x0, x1) x [y0, y1)
 };
 
 struct Hit {
@@ -115,18 +116,13 @@ class Renderer {
     pixel_angle_ = 1.0 / std::sqrt(cam.fx * cam.fy);
     tiles_x_ = (cam.width + kTile - 1) / kTile;
     tiles_y_ = (cam.height + kTile - 1) / kTile;
-    bins_.resize(static_cast<size_t>(tiles_x_) * tiles_y_);
     M_world_ = T_world_cam.rotation() * Kinv_;
     for (const synth::Box& box : scene.boxes) addBox(box, SE3());
     for (const synth::MovingObject& o : scene.objects) {
       const SE3 T_world_object = synth::objectPose(scene, o, time_s);
       for (const synth::Box& box : o.boxes) addBox(box, T_world_object);
     }
-    // Nearest first: a pixel stops testing boxes once the next cannot be nearer than its hit.
-    for (std::vector<int>& bin : bins_)
-      std::sort(bin.begin(), bin.end(), [&](int a, int b) {
-        return boxes_[a].z_min < boxes_[b].z_min || (boxes_[a].z_min == boxes_[b].z_min && a < b);
-      });
+    binBoxes();
   }
 
   RenderedView render(int threads) const {
@@ -197,10 +193,28 @@ class Renderer {
     const int x1 = static_cast<int>(std::clamp(std::ceil(u1) + 2, 0.0, 1.0 * cam_.width));
     const int y1 = static_cast<int>(std::clamp(std::ceil(v1) + 2, 0.0, 1.0 * cam_.height));
     if (x0 >= x1 || y0 >= y1) return;
+    rb.x0 = x0, rb.y0 = y0, rb.x1 = x1, rb.y1 = y1;
     boxes_.push_back(rb);
-    for (int ty = y0 / kTile; ty <= (y1 - 1) / kTile; ++ty)
-      for (int tx = x0 / kTile; tx <= (x1 - 1) / kTile; ++tx)
-        bins_[static_cast<size_t>(ty) * tiles_x_ + tx].push_back(index);
+  }
+
+  /// Lists the boxes overlapping each screen tile (compressed rows), nearest first: a pixel
+  /// stops testing boxes once the next cannot be nearer than its hit.
+  void binBoxes() {
+    std::vector<int> order;
+    for (int i = 0; i < static_cast<int>(boxes_.size()); ++i)
+      if (!boxes_[i].box->inside) order.push_back(i);
+    std::stable_sort(order.begin(), order.end(),
+                     [&](int a, int b) { return boxes_[a].z_min < boxes_[b].z_min; });
+    auto forTiles = [&](const RayBox& b, const auto& f) {
+      for (int ty = b.y0 / kTile; ty <= (b.y1 - 1) / kTile; ++ty)
+        for (int tx = b.x0 / kTile; tx <= (b.x1 - 1) / kTile; ++tx) f(ty * tiles_x_ + tx);
+    };
+    bin_start_.assign(static_cast<size_t>(tiles_x_) * tiles_y_ + 1, 0);
+    for (int i : order) forTiles(boxes_[i], [&](int tile) { ++bin_start_[tile + 1]; });
+    for (size_t t = 1; t < bin_start_.size(); ++t) bin_start_[t] += bin_start_[t - 1];
+    bin_items_.resize(bin_start_.back());
+    std::vector<int> next(bin_start_.begin(), bin_start_.end() - 1);
+    for (int i : order) forTiles(boxes_[i], [&](int tile) { bin_items_[next[tile]++] = i; });
   }
 
   void shadePixel(int x, int y, Vec3* rgb, float* depth, uint16_t* instance,
@@ -212,9 +226,13 @@ class Renderer {
       const double t = -c.z() / d_world.z();
       if (t > kNear) hit = Hit{t, -1, 2, true, true};
     }
-    for (int index : bins_[static_cast<size_t>(y / kTile) * tiles_x_ + x / kTile]) {
-      if (boxes_[index].z_min >= hit.t) break;
-      intersectBox(boxes_[index], index, direction(boxes_[index].M, x, y), &hit);
+    const int tile = (y / kTile) * tiles_x_ + x / kTile;
+    for (int k = bin_start_[tile]; k < bin_start_[tile + 1]; ++k) {
+      const int index = bin_items_[k];
+      const RayBox& b = boxes_[index];
+      if (b.z_min >= hit.t) break;
+      if (x < b.x0 || x >= b.x1 || y < b.y0 || y >= b.y1) continue;
+      intersectBox(b, index, direction(b.M, x, y), &hit);
     }
     for (int index : shells_)
       intersectShell(boxes_[index], index, direction(boxes_[index].M, x, y), &hit);
@@ -292,7 +310,7 @@ class Renderer {
   int tiles_x_ = 0, tiles_y_ = 0;
   std::vector<RayBox> boxes_;
   std::vector<int> shells_;
-  std::vector<std::vector<int>> bins_;
+  std::vector<int> bin_start_, bin_items_;  // tile t: bin_items_[bin_start_[t] .. [t + 1])
 };
 
 // Counter-based Gaussian noise: the value at (key, index) does not depend on the order in

@@ -377,27 +377,30 @@ SceneData buildScene(const std::string& name, uint64_t seed, int frames) {
     const double c[8] = {
         24, 10, 0.15, 2.0, 1.0, 0.5, rng.uniform(0, kTwoPi), rng.uniform(0, kTwoPi)};
     addCar(&b, &s, 101, {0.1, 0.3, 0.7}, c);
-    // A gate in the left facade ahead of the camera's half-way point: its building is rebuilt
-    // flush with the sidewalk so the hinge sits on the facade (y = 7).
+    // A gate in the right-hand facade (the camera's side) ahead of the camera's half-way
+    // point. Its building is rebuilt flush with the sidewalk so the hinge sits on the facade
+    // (y = -7), and lamp posts within its swing are removed.
     const double xg = streetX(s.path, 0.5 * duration) + 30, w = 2.6;
     s.boxes.erase(std::remove_if(s.boxes.begin(), s.boxes.end(),
                                  [&](const Box& box) {
-                                   return box.faces[0].instance == kInstBuilding &&
-                                          box.lo.y() > 6 && box.lo.y() < 10 &&
+                                   const uint16_t id = box.faces[0].instance;
+                                   return (id == kInstBuilding || id == kInstPole) &&
+                                          box.hi.y() < -4 && box.hi.y() > -10 &&
                                           box.hi.x() > xg - 4 && box.lo.x() < xg + w + 4;
                                  }),
                   s.boxes.end());
     Box house = Builder::box(
-        {xg - 4, 7, 0}, {xg + w + 4, 19, 9},
-        b.material(MaterialKind::kPlaster, {0.8, 0.78, 0.7}, {0.6, 0.6, 0.55}, 1, true),
+        {xg - 4, -19, 0}, {xg + w + 4, -7, 9},
+        b.material(MaterialKind::kBricks, {0.6, 0.32, 0.22}, {0.42, 0.22, 0.15}, 1, true),
         kInstBuilding, kClassWall);
+    setAxis(&house, 2, b.material(MaterialKind::kGround, {0.35, 0.33, 0.32}, {0.5, 0.45, 0.42}));
     house.decal =
-        b.decal(2, xg, xg + w, 0.0, 3.0,
+        b.decal(3, xg, xg + w, 0.0, 3.0,
                 b.material(MaterialKind::kDoorway, {0.05, 0.05, 0.05}, {0.04, 0.04, 0.04}));
     b.add(house);
-    // Hinge at the gate's +x end; closed, the panel runs along -x; it opens towards the street.
-    addDoor(&b, &s, 102, yawPose(M_PI, Vec3(xg + w, 7.0, 0)), w, 2.8, 0.16, 1.2, 6.0,
-            b.material(MaterialKind::kDoor, {0.35, 0.45, 0.4}, {0.2, 0.3, 0.25}, 0.65), "building");
+    // Hinge at the gate's -x end; closed, the panel runs along +x; it opens towards the street.
+    addDoor(&b, &s, 102, yawPose(0.0, Vec3(xg, -7.0, 0)), w, 2.8, 0.16, 1.2, 6.0,
+            b.material(MaterialKind::kDoor, {0.35, 0.5, 0.4}, {0.2, 0.3, 0.25}, 0.65), "building");
   } else if (name == "large") {
     const double p[8] = {
         4.5, 1.5, 0.3, -2.0, 0.5, 0.35, rng.uniform(0, kTwoPi), rng.uniform(0, kTwoPi)};

@@ -88,9 +88,14 @@ inline double valueNoise(double x, double y, uint32_t offset) {
   return top + sy * (bottom - top);
 }
 
-/// Fractal sum of value noise from `freq` (cycles/m) up, each octave twice the frequency, gain
-/// times the amplitude, and rotated (hides the lattice). Octaves too fine for the footprint fade
-/// out, so the result tends to 0 (the mean) far away. Roughly in [-1, 1], std about 0.3.
+/// Frequency ratio of successive fBm octaves: above the usual 2 so fewer octaves span the scales
+/// from a surface's size down to a pixel (the renderer's main cost).
+constexpr double kLacunarity = 2.5;
+
+/// Fractal sum of value noise from `freq` (cycles/m) up, each octave kLacunarity times the
+/// frequency and gain times the amplitude, and rotated (hides the lattice). Octaves too fine for
+/// the footprint fade out, so the result tends to 0 (the mean) far away. Roughly in [-1, 1], std
+/// about 0.3.
 double fbm(double x, double y, uint32_t seed, double freq, int octaves, double fw,
            double gain = 0.5) {
   double sum = 0, amp = 1;
@@ -98,13 +103,13 @@ double fbm(double x, double y, uint32_t seed, double freq, int octaves, double f
   for (int o = 0; o < octaves; ++o) {
     const double w = lodWeight(freq, fw);
     // Finer octaves are all below the footprint, or too faint to change a grey level.
-    if (w <= 0 || amp < 0.04) break;
+    if (w <= 0 || amp < 0.07) break;
     sum += w * amp * valueNoise(x * freq, y * freq, offset);
     offset += 0x9e3779b9U;
     const double xr = 0.8 * x - 0.6 * y;
     y = 0.6 * x + 0.8 * y;
     x = xr;
-    freq *= 2;
+    freq *= kLacunarity;
     amp *= gain;
   }
   return sum * (1.0 - gain);  // normalised by the sum of all amplitudes, 1 / (1 - gain)
@@ -118,16 +123,19 @@ inline double boxCoverage(double x, double a, double b, double w) {
 }
 
 /// Fraction of the footprint inside the periodic pulses [a + k period, a + len + k period].
-inline double pulseCoverage(double x, double period, double a, double len, double w) {
-  if (w <= 1e-9) {
-    const double r = x - a - floorD((x - a) / period) * period;
-    return r < len ? 1 : 0;
-  }
+__attribute__((always_inline)) inline double pulseCoverage(double x, double period, double a,
+                                                           double len, double w) {
+  const double inv = 1.0 / period;  // folded to a constant where period is one
+  const double r = x - a - floorD((x - a) * inv) * period, h = 0.5 * w;
+  // Most footprints lie wholly inside or wholly outside a pulse.
+  if (r >= h && r + h <= len) return 1;
+  if (r - h >= len && r + h <= period) return 0;
+  if (w <= 1e-9) return r < len ? 1 : 0;
   auto integral = [&](double s) {
-    const double k = floorD((s - a) / period);
+    const double k = floorD((s - a) * inv);
     return k * len + std::min(s - a - k * period, len);
   };
-  return clamp01((integral(x + 0.5 * w) - integral(x - 0.5 * w)) / w);
+  return clamp01((integral(x + h) - integral(x - h)) / w);
 }
 
 inline double unionOf(double a, double b) { return a + b - a * b; }
@@ -137,9 +145,9 @@ inline double unionOf(double a, double b) { return a + b - a * b; }
 
 Vec3 asphalt(const Material& m, double u, double v, double fw) {
   const double n = fbm(u, v, m.seed, 0.3, 9, fw, 0.55);
-  const double fine = fbm(u, v, m.seed + 17, 24.0, 3, fw, 0.6);
-  const double patch = smoothstep(0.08, 0.22, fbm(u, v, m.seed + 31, 0.05, 3, fw));
-  Vec3 c = m.color_a * (1.0 + 0.9 * n + 0.5 * fine - 0.25 * patch);
+  const double fine = fbm(u, v, m.seed + 17, 6.0, 3, fw, 0.7);  // grain: 6, 15, 37 cycles/m
+  const double patch = smoothstep(0.08, 0.22, fbm(u, v, m.seed + 31, 0.05, 2, fw));
+  Vec3 c = m.color_a * (1.0 + 0.9 * n + 1.0 * fine - 0.25 * patch);
   // Markings: dashed centre line, solid edge lines, a zebra crossing every 150 m.
   const double hw = m.scale;
   double paint = boxCoverage(v, -0.075, 0.075, fw) * pulseCoverage(u, 9.0, 0.0, 3.0, fw);
@@ -175,13 +183,13 @@ Vec3 brickWall(const Material& m, double u, double v, double fw) {
   const double jitter = (cellRandom((u + shift) / kW, row, m.seed) - 0.5) * lodWeight(1 / kH, fw);
   Vec3 c = mix(m.color_a, m.color_b, clamp01(0.5 + 0.9 * jitter)) *
            (1.0 + 0.3 * fbm(u, v, m.seed + 1, 2.0, 7, fw));
-  c *= 1.0 - 0.3 * std::max(0.0, fbm(u, 0.3 * v, m.seed + 5, 0.2, 4, fw));  // stains
+  c *= 1.0 - 0.3 * std::max(0.0, fbm(u, 0.3 * v, m.seed + 5, 0.2, 2, fw));  // stains
   return mix(c, Vec3(0.72, 0.7, 0.64), mortar);
 }
 
 Vec3 plasterWall(const Material& m, double u, double v, double fw) {
   Vec3 c = m.color_a * (1.0 + 0.35 * fbm(u, v, m.seed, 0.4, 10, fw, 0.55));
-  c *= 1.0 - 0.25 * std::max(0.0, fbm(4.0 * u, 0.25 * v, m.seed + 9, 0.5, 3, 4.0 * fw));
+  c *= 1.0 - 0.25 * std::max(0.0, fbm(4.0 * u, 0.25 * v, m.seed + 9, 0.5, 2, 4.0 * fw));
   return mix(c, m.color_b, pulseCoverage(v, 3.0, 2.75, 0.25, fw));  // storey cornices
 }
 

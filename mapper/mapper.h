@@ -1,0 +1,103 @@
+// The mapper core (no bus): keyframes in, training steps, refined poses, field updates,
+// renders and checkpoints out. mapper/mapper_node.h wires it to the bus.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "common/types.h"
+#include "mapper/field.h"
+#include "mapper/keyframe_store.h"
+#include "mapper/trainer.h"
+#include "mapper/volume_renderer.h"
+
+namespace radslam {
+
+struct MapperParams {
+  // Field. The fine voxel size is fixed by the first keyframe with depth unless given.
+  double fine_voxel_size = 0;  // m; 0 = fine_voxel_rel * median depth
+  double fine_voxel_rel = 0.01;
+  int levels = 2;
+  int level_ratio = 4;
+  int sh_degree = 0;
+  double density_bias = -4.6;  // raw density offset: softplus(-4.6) = 0.01 per fine voxel
+  // Allocation around each keyframe's depth.
+  int alloc_stride = 4;         // pixels
+  float alloc_sigma_range = 3;  // depth sigmas either side of the depth
+  /// Newly allocated fine voxels at a keyframe's depth start opaque (this raw density) with
+  /// the pixel's colour, so training starts from the depth prior instead of fog; 0 = off.
+  double seed_density = 8;
+  TrainerParams trainer;
+  // Render-only path (renders of keyframes, the renderer process).
+  float render_step_fine = 0.5f;  // fine voxels
+  int render_threads = 1;
+};
+
+/// A keyframe pose refined by the mapper.
+struct RefinedPose {
+  int32_t keyframe_id = 0;
+  int32_t version = 0;
+  Header header;  // the keyframe's
+  SE3 T_world_cam;
+};
+
+class Mapper {
+ public:
+  /// Throws std::invalid_argument on inconsistent parameters.
+  explicit Mapper(const MapperParams& params = MapperParams());
+
+  /// Stores (or replaces, by version) a keyframe and allocates the field around its depth.
+  /// The first keyframe with depth fixes the voxel sizes. Throws std::invalid_argument on a
+  /// malformed keyframe (KeyframeStore::insert).
+  KeyframeStore::InsertResult addKeyframe(const Keyframe& keyframe);
+
+  /// Forgets every keyframe and the field (CONTROL RESET).
+  void reset();
+
+  /// `steps` training steps; statistics of the last one.
+  TrainStats train(int steps = 1);
+
+  /// Poses refined since the last call (the gauge keyframe never is).
+  std::vector<RefinedPose> takeRefinedPoses();
+
+  /// Blocks changed since `since_version` (commits at most max_blocks pending changes first,
+  /// <= 0 = all); see mapper/field_io.h.
+  FieldUpdate makeUpdate(int64_t since_version, int max_blocks = 0);
+  FieldUpdate makeSnapshot();
+
+  /// Renders any pinhole view (deterministic given the field).
+  RenderImages render(const SE3& T_world_cam, const CameraModel& camera) const;
+  MarchParams marchParams() const;
+
+  /// Checkpoint: field, optimiser state, keyframe poses and statistics, trainer counters and,
+  /// with images, the keyframe images (enough to resume training exactly).
+  void saveCheckpoint(const std::string& path, bool with_images = true) const;
+  /// Replaces the state by a checkpoint's. Throws std::runtime_error naming the file.
+  void loadCheckpoint(const std::string& path);
+
+  const MapperParams& params() const { return params_; }
+  const Field& field() const { return field_; }
+  Field& field() { return field_; }
+  const KeyframeStore& keyframes() const { return keyframes_; }
+  KeyframeStore& keyframes() { return keyframes_; }
+  const Trainer& trainer() const { return trainer_; }
+  Trainer& trainer() { return trainer_; }
+
+ private:
+  void initializeField();
+  void allocateFor(const KeyframeEntry& entry);
+  void seedSurface(const KeyframeEntry& entry, int first_new_block);
+
+  MapperParams params_;
+  Field field_;
+  KeyframeStore keyframes_;
+  Trainer trainer_;
+  VolumeRenderer renderer_;
+  int64_t version_floor_ = 0;  // field versions stay monotonic across resets
+};
+
+/// Median of the valid (> 0, finite) depths of a keyframe, 0 when none.
+double medianDepth(const Keyframe& keyframe);
+
+}  // namespace radslam

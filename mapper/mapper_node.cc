@@ -1,0 +1,211 @@
+#include "mapper/mapper_node.h"
+
+#include <filesystem>
+#include <iostream>
+
+#include "common/cli.h"
+#include "mapper/field_io.h"
+#include "mapper/mapper_outputs.h"
+
+namespace radslam {
+
+MapperNode::MapperNode(Bus* bus, const MapperNodeParams& params, std::string out_dir)
+    : bus_(bus),
+      params_(params),
+      out_dir_(std::move(out_dir)),
+      mapper_(params.core),
+      reporter_("mapper"),
+      start_(std::chrono::steady_clock::now()) {
+  bus_->subscribe<Keyframe>(channel::kKeyframe, [this](const Keyframe& k) { onKeyframe(k); });
+  bus_->subscribe<Control>(channel::kControl, [this](const Control& c) { onControl(c); });
+  reporter_.setState(ProcessState::kIdle);
+}
+
+double MapperNode::now() const {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
+}
+
+void MapperNode::onKeyframe(const Keyframe& keyframe) {
+  // Keep only the newest version per id; the store ignores older ones anyway.
+  auto it = queue_.find(keyframe.keyframe_id);
+  if (it == queue_.end() || it->second.version < keyframe.version)
+    queue_[keyframe.keyframe_id] = keyframe;
+}
+
+void MapperNode::onControl(const Control& control) {
+  if (!control.target.empty() && control.target != "mapper") return;
+  switch (control.command) {
+    case ControlCommand::kStop:
+      stop_ = true;
+      break;
+    case ControlCommand::kSave:
+      save_requested_ = true;
+      save_request_ = control.argument;
+      break;
+    case ControlCommand::kSnapshot:
+    case ControlCommand::kRepublish:
+      snapshot_requested_ = true;
+      break;
+    case ControlCommand::kReset:
+      mapper_.reset();
+      queue_.clear();
+      snapshot_requested_ = true;  // replicas start over from the empty field
+      break;
+  }
+}
+
+void MapperNode::addQueuedKeyframes() {
+  for (auto& [id, keyframe] : queue_) {
+    try {
+      const KeyframeStore::InsertResult r = mapper_.addKeyframe(keyframe);
+      if (r != KeyframeStore::InsertResult::kIgnored)
+        reporter_.itemHandled(keyframe.frame_index, keyframe.header.utime);
+    } catch (const std::invalid_argument& e) {
+      // A malformed keyframe is skipped; the mapper keeps going.
+      std::cerr << "radslam-mapper: warning: skipping " << e.what() << "\n";
+      reporter_.setError(e.what());
+    }
+  }
+  queue_.clear();
+}
+
+void MapperNode::publishUpdate(bool flush) {
+  // Bounded messages: at most max_blocks_per_update changed blocks each; a flush sends them
+  // all, in as many messages as needed.
+  do {
+    FieldUpdate u = mapper_.makeUpdate(delta_base_, params_.max_blocks_per_update);
+    if (u.blocks.empty()) return;
+    u.header.utime = wallClockMicros();
+    bus_->publish(channel::kField, u);
+    delta_base_ = u.version;
+  } while (flush);
+}
+
+void MapperNode::publishSnapshot() {
+  FieldUpdate u = mapper_.makeSnapshot();
+  u.header.utime = wallClockMicros();
+  bus_->publish(channel::kField, u);
+  // Deltas stay based on the last delta, so replicas that missed the snapshot keep up too.
+  snapshot_requested_ = false;
+}
+
+void MapperNode::publishPoses() {
+  for (const RefinedPose& p : mapper_.takeRefinedPoses()) {
+    if (!params_.publish_poses) continue;
+    PoseStamped msg;
+    msg.header = p.header;
+    const int k = mapper_.keyframes().find(p.keyframe_id);
+    msg.frame_index = k >= 0 ? mapper_.keyframes().entry(k).keyframe.frame_index : -1;
+    msg.state = TrackingState::kTracking;
+    msg.is_keyframe = true;
+    msg.T_world_cam = p.T_world_cam;
+    if (k >= 0) msg.covariance = mapper_.keyframes().entry(k).keyframe.covariance;
+    bus_->publish(kMapperPoseChannel, msg);
+  }
+}
+
+void MapperNode::publishStatus() {
+  const Field& f = mapper_.field();
+  reporter_.setQueueDepth(static_cast<int32_t>(queue_.size()));
+  reporter_.setValue("keyframes", mapper_.keyframes().size());
+  reporter_.setValue("blocks", static_cast<double>(f.initialized() ? f.totalBlocks() : 0));
+  reporter_.setValue("field_version", static_cast<double>(f.initialized() ? f.version() : 0));
+  reporter_.setValue("rays_per_s", train_s_ > 0 ? rays_ / train_s_ : 0);
+  reporter_.setValue("loss", last_stats_.loss);
+  reporter_.setValue("loss_rgb", last_stats_.loss_rgb);
+  reporter_.setValue("loss_depth", last_stats_.loss_depth);
+  reporter_.setValue("train_steps", static_cast<double>(mapper_.trainer().steps()));
+  Status s = reporter_.make();
+  bus_->publish(channel::kStatus, s);
+}
+
+void MapperNode::saveCheckpoint(const std::string& path) {
+  try {
+    if (path.empty()) return;
+    const std::filesystem::path parent = std::filesystem::path(path).parent_path();
+    if (!parent.empty()) std::filesystem::create_directories(parent);
+    mapper_.saveCheckpoint(path, params_.checkpoint_images);
+    std::cerr << "radslam-mapper: checkpoint " << path << "\n";
+  } catch (const std::exception& e) {
+    std::cerr << "radslam-mapper: warning: " << e.what() << "\n";
+    reporter_.setError(e.what());
+  }
+}
+
+bool MapperNode::spinOnce(int timeout_ms) {
+  const bool can_train = mapper_.field().initialized() && mapper_.keyframes().size() > 0;
+  // Poll when there is training to do, else wait for a message.
+  const int handled = bus_->handle(can_train ? 0 : timeout_ms);
+  if (handled < 0) return false;
+  addQueuedKeyframes();
+  if (mapper_.field().initialized() && mapper_.keyframes().size() > 0) {
+    reporter_.setState(ProcessState::kRunning);
+    BusyTimer::Scope busy(reporter_.busy());
+    const double t0 = now();
+    last_stats_ = mapper_.train(1);
+    train_s_ += now() - t0;
+    rays_ += last_stats_.rays;
+  }
+  // (A snapshot of no field would mean nothing to a replica: wait until there is one.)
+  if (snapshot_requested_ && mapper_.field().initialized()) publishSnapshot();
+  if (save_requested_) {
+    save_requested_ = false;
+    saveCheckpoint(!save_request_.empty() ? save_request_
+                   : out_dir_.empty()     ? std::string()
+                                          : out_dir_ + "/mapper.ckpt");
+  }
+  const double t = now();
+  if (t - last_update_ >= params_.update_period_s) {
+    last_update_ = t;
+    publishUpdate(false);
+    publishPoses();
+  }
+  if (t - last_status_ >= params_.status_period_s) {
+    last_status_ = t;
+    publishStatus();
+  }
+  return true;
+}
+
+void MapperNode::finish() {
+  // Take what is still queued, train a last bounded burst, publish everything.
+  bus_->handle(0);
+  addQueuedKeyframes();
+  const double t0 = now();
+  if (mapper_.field().initialized() && mapper_.keyframes().size() > 0) {
+    while (now() - t0 < params_.final_training_s) {
+      last_stats_ = mapper_.train(1);
+      rays_ += last_stats_.rays;
+    }
+  }
+  train_s_ += now() - t0;
+  publishUpdate(true);
+  publishPoses();
+  if (!out_dir_.empty()) {
+    try {
+      const MapperOutputSummary s = writeMapperOutputs(
+          mapper_, out_dir_, {params_.checkpoint_images, params_.render_stride, params_.mesh_iso});
+      std::cerr << "radslam-mapper: wrote " << s.checkpoint << ", " << s.cloud << " ("
+                << s.cloud_points << " points), " << s.mesh << " (" << s.mesh_faces << " faces), "
+                << s.renders << " renders, " << s.trajectory << "\n";
+    } catch (const std::exception& e) {
+      std::cerr << "radslam-mapper: error: " << e.what() << "\n";
+      reporter_.setError(e.what());
+      reporter_.setState(ProcessState::kError);
+      publishStatus();
+      throw;
+    }
+  }
+  reporter_.setState(ProcessState::kDone);
+  publishStatus();
+}
+
+int MapperNode::run() {
+  while (!stop_ && !radslam::stopRequested()) {
+    if (!spinOnce(100)) break;  // end of a file:// log or a bus error
+  }
+  finish();
+  return 0;
+}
+
+}  // namespace radslam

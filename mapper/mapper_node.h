@@ -1,0 +1,70 @@
+// The mapper on the bus: KEYFRAME and CONTROL in; FIELD, MAPPER_POSE and STATUS out. Trains
+// continuously between messages on one thread (the core may use more, see threads).
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <map>
+#include <string>
+
+#include "common/bus.h"
+#include "common/process_stats.h"
+#include "mapper/mapper.h"
+#include "mapper/mapper_params.h"
+
+namespace radslam {
+
+/// Keyframe poses refined by the mapper (PoseStamped, is_keyframe = true, frame_index = the
+/// keyframe's; header = the keyframe's header). Not POSE: that is the tracker's stream.
+inline constexpr const char* kMapperPoseChannel = "MAPPER_POSE";
+
+class MapperNode {
+ public:
+  /// out_dir: where checkpoints and final outputs go ("" = no files).
+  MapperNode(Bus* bus, const MapperNodeParams& params, std::string out_dir);
+
+  /// Loops until a stop (signal or CONTROL STOP for "mapper" or all) or the end of a file://
+  /// log, then finishes (final training, outputs). Returns the process exit code.
+  int run();
+
+  /// One iteration: handle pending messages (waiting at most timeout_ms when idle), add
+  /// queued keyframes, one training step, periodic publishing. Exposed for tests.
+  /// Returns false when the bus failed or ended.
+  bool spinOnce(int timeout_ms);
+  /// Final training burst (bounded by final_training_s), last field update and poses, outputs.
+  void finish();
+
+  bool stopRequested() const { return stop_; }
+  const Mapper& mapper() const { return mapper_; }
+  int64_t publishedVersion() const { return delta_base_; }
+
+ private:
+  void onKeyframe(const Keyframe& keyframe);
+  void onControl(const Control& control);
+  void addQueuedKeyframes();
+  void publishUpdate(bool flush);
+  void publishSnapshot();
+  void publishPoses();
+  void publishStatus();
+  void saveCheckpoint(const std::string& path);
+  double now() const;
+
+  Bus* bus_;
+  MapperNodeParams params_;
+  std::string out_dir_;
+  Mapper mapper_;
+  StatusReporter reporter_;
+  std::map<int32_t, Keyframe> queue_;  // latest version per id, waiting to be added
+  int64_t delta_base_ = 0;             // version of the last published delta update
+  bool snapshot_requested_ = false;
+  bool stop_ = false;
+  std::string save_request_;  // checkpoint path asked for by CONTROL SAVE ("" = none)
+  bool save_requested_ = false;
+  std::chrono::steady_clock::time_point start_;
+  double last_update_ = -1e9, last_status_ = -1e9;
+  int64_t rays_ = 0;
+  double train_s_ = 0;
+  TrainStats last_stats_;
+};
+
+}  // namespace radslam

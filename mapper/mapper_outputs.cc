@@ -1,0 +1,79 @@
+#include "mapper/mapper_outputs.h"
+
+#include <algorithm>
+#include <cstdio>
+#include <filesystem>
+#include <stdexcept>
+
+#include <opencv2/imgcodecs.hpp>
+
+#include "common/exr_io.h"
+#include "common/trajectory.h"
+#include "mapper/mesh_export.h"
+
+namespace radslam {
+
+std::string renderStem(int64_t utime) {
+  char buf[64];
+  std::snprintf(buf, sizeof(buf), "%.6f", static_cast<double>(utime) * 1e-6);
+  return buf;
+}
+
+MapperOutputSummary writeMapperOutputs(const Mapper& mapper, const std::string& out_dir,
+                                       const MapperOutputOptions& options) {
+  namespace fs = std::filesystem;
+  MapperOutputSummary summary;
+  const fs::path out(out_dir);
+  const fs::path rgb_dir = out / "renders" / "rgb", depth_dir = out / "renders" / "depth";
+  std::error_code ec;
+  for (const fs::path& dir : {out, rgb_dir, depth_dir}) {
+    fs::create_directories(dir, ec);
+    if (ec)
+      throw std::runtime_error("mapper outputs: cannot create " + dir.string() + ": " +
+                               ec.message());
+  }
+  summary.checkpoint = (out / "mapper.ckpt").string();
+  mapper.saveCheckpoint(summary.checkpoint, options.checkpoint_images);
+
+  // Keyframes in time order.
+  const KeyframeStore& store = mapper.keyframes();
+  std::vector<int> order(store.size());
+  for (int i = 0; i < store.size(); ++i) order[i] = i;
+  std::sort(order.begin(), order.end(), [&](int a, int b) {
+    return store.entry(a).keyframe.header.utime < store.entry(b).keyframe.header.utime;
+  });
+  Trajectory trajectory;
+  std::vector<std::pair<SE3, CameraModel>> views;
+  for (int i : order) {
+    const KeyframeEntry& e = store.entry(i);
+    trajectory.push_back({e.keyframe.header.utime * 1e-6, e.T_world_cam});
+    views.emplace_back(e.T_world_cam, e.keyframe.camera);
+  }
+  summary.trajectory = (out / "mapper_keyframes.txt").string();
+  writeTumTrajectory(summary.trajectory, trajectory);
+
+  const PointCloud cloud =
+      surfacePoints(mapper.field(), views, mapper.marchParams(), options.cloud_stride);
+  summary.cloud = (out / "map_points.ply").string();
+  writePly(summary.cloud, cloud);
+  summary.cloud_points = cloud.points.size();
+  const Mesh mesh = extractMesh(mapper.field(), options.mesh_iso);
+  summary.mesh = (out / "map_mesh.ply").string();
+  writePly(summary.mesh, mesh);
+  summary.mesh_faces = mesh.faces.size();
+
+  for (int i : order) {
+    const KeyframeEntry& e = store.entry(i);
+    const RenderImages images = mapper.render(e.T_world_cam, e.keyframe.camera);
+    const std::string stem = renderStem(e.keyframe.header.utime);
+    const std::string png = (rgb_dir / (stem + ".png")).string();
+    if (!cv::imwrite(png, toBgr8(images.color)))
+      throw std::runtime_error("mapper outputs: cannot write " + png);
+    writeExr((depth_dir / (stem + ".exr")).string(),
+             {{"depth", images.depth}, {"sigma", images.sigma}});
+    ++summary.renders;
+  }
+  return summary;
+}
+
+}  // namespace radslam

@@ -1,0 +1,101 @@
+#include "mapper/mapper_params.h"
+
+#include <stdexcept>
+
+#include "common/params.h"
+
+namespace radslam {
+
+namespace {
+
+void getFloat(ParamReader& r, const std::string& key, float* v) {
+  double d = *v;
+  r.get(key, &d);
+  *v = static_cast<float>(d);
+}
+
+void getInt64(ParamReader& r, const std::string& key, int64_t* v) {
+  double d = static_cast<double>(*v);
+  r.get(key, &d);
+  *v = static_cast<int64_t>(d);
+}
+
+}  // namespace
+
+MapperNodeParams loadMapperParams(const std::string& yaml_path,
+                                  const std::vector<std::string>& overrides, std::string* dump,
+                                  std::string* source) {
+  MapperNodeParams p;
+  ParamReader r(yaml_path, "mapper");
+  for (const std::string& o : overrides) r.addOverride(o);
+  MapperParams& c = p.core;
+  // Field.
+  r.get("fine_voxel_size", &c.fine_voxel_size);
+  r.get("fine_voxel_rel", &c.fine_voxel_rel);
+  r.get("levels", &c.levels);
+  r.get("level_ratio", &c.level_ratio);
+  r.get("sh_degree", &c.sh_degree);
+  r.get("density_bias", &c.density_bias);
+  r.get("alloc_stride", &c.alloc_stride);
+  getFloat(r, "alloc_sigma_range", &c.alloc_sigma_range);
+  r.get("seed_density", &c.seed_density);
+  // Training.
+  TrainerParams& t = c.trainer;
+  r.get("batch_rays", &t.batch_rays);
+  r.get("patch_size", &t.patch_size);
+  r.get("threads", &t.threads);
+  int seed = static_cast<int>(t.seed);
+  r.get("seed", &seed);
+  t.seed = static_cast<uint64_t>(seed);
+  r.get("surface_samples", &t.surface_samples);
+  r.get("spread_samples", &t.spread_samples);
+  r.get("free_samples", &t.free_samples);
+  getFloat(r, "sigma_range", &t.sigma_range);
+  getFloat(r, "sigma_min_voxels", &t.sigma_min_voxels);
+  getFloat(r, "sigma_max_voxels", &t.sigma_max_voxels);
+  getFloat(r, "near_voxels", &t.near_voxels);
+  std::string depth_loss = depthLossName(t.depth_loss);
+  r.get("depth_loss", &depth_loss);
+  getFloat(r, "lambda_depth", &t.lambda_depth);
+  getFloat(r, "raw_depth_sigma_voxels", &t.raw_depth_sigma_voxels);
+  getFloat(r, "min_depth_sigma_voxels", &t.min_depth_sigma_voxels);
+  getFloat(r, "depth_huber", &t.depth_huber);
+  r.get("train_depthless_rays", &t.train_depthless_rays);
+  getFloat(r, "lr_density", &t.adam.lr_density);
+  getFloat(r, "lr_color", &t.adam.lr_color);
+  getFloat(r, "coarse_lr_scale", &t.adam.coarse_lr_scale);
+  getFloat(r, "adam_beta1", &t.adam.beta1);
+  getFloat(r, "adam_beta2", &t.adam.beta2);
+  r.get("refine_poses", &t.refine_poses);
+  getFloat(r, "pose_lr_rot", &t.pose_lr_rot);
+  getFloat(r, "pose_lr_trans_voxels", &t.pose_lr_trans_voxels);
+  getInt64(r, "pose_warmup_rays", &t.pose_warmup_rays);
+  getFloat(r, "pose_depth_weight", &t.pose_depth_weight);
+  getFloat(r, "recency_boost", &t.recency_boost);
+  getFloat(r, "recency_rays", &t.recency_rays);
+  getFloat(r, "loss_boost", &t.loss_boost);
+  // Rendering.
+  getFloat(r, "render_step_fine", &c.render_step_fine);
+  r.get("render_threads", &c.render_threads);
+  // Node.
+  r.get("update_period_s", &p.update_period_s);
+  r.get("max_blocks_per_update", &p.max_blocks_per_update);
+  r.get("status_period_s", &p.status_period_s);
+  r.get("final_training_s", &p.final_training_s);
+  r.get("checkpoint_images", &p.checkpoint_images);
+  r.get("render_stride", &p.render_stride);
+  getFloat(r, "mesh_iso", &p.mesh_iso);
+  r.get("publish_poses", &p.publish_poses);
+  r.finish();
+  t.depth_loss = parseDepthLoss(depth_loss);
+  if (p.update_period_s <= 0 || p.status_period_s <= 0 || p.final_training_s < 0 ||
+      p.render_stride < 1)
+    throw std::invalid_argument(
+        "mapper: update_period_s and status_period_s must be > 0, final_training_s >= 0, "
+        "render_stride >= 1");
+  if (dump) *dump = r.dump();
+  if (source) *source = r.source();
+  return p;
+}
+
+}  // namespace radslam

@@ -1,0 +1,54 @@
+// Sparse ("lazy") Adam on the voxel parameters: only voxels with a gradient in this step are
+// updated; each voxel keeps its own step counter for the bias correction, and moments exist
+// for every allocated voxel but decay only when the voxel is touched.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "mapper/field.h"
+#include "mapper/volume_renderer.h"
+
+namespace radslam {
+
+struct AdamParams {
+  float lr_density = 0.3f;      // raw density units per step
+  float lr_color = 0.05f;       // raw colour units per step
+  float coarse_lr_scale = 1.f;  // multiplies the learning rates of every level but the finest
+  float beta1 = 0.9f;
+  float beta2 = 0.99f;
+  float eps = 1e-8f;
+};
+
+class SparseAdam {
+ public:
+  explicit SparseAdam(const AdamParams& params = AdamParams()) : params_(params) {}
+  void setParams(const AdamParams& params) { params_ = params; }
+  const AdamParams& params() const { return params_; }
+
+  /// Grows the state to the field's blocks (new voxels start at zero moments, step 0).
+  void resize(const Field& field);
+  /// One step on every voxel grad marked as written (FieldGradient::markVoxel); marks
+  /// those blocks changed in the field and leaves grad zeroed with no touched blocks. Returns
+  /// the number of voxels updated.
+  int64_t step(Field* field, FieldGradient* grad);
+
+  // State, for checkpoints: per level, parallel to the field's parameters (steps per voxel).
+  std::vector<std::vector<float>>& firstMoments() { return m_; }
+  std::vector<std::vector<float>>& secondMoments() { return v_; }
+  std::vector<std::vector<int32_t>>& steps() { return steps_; }
+  const std::vector<std::vector<float>>& firstMoments() const { return m_; }
+  const std::vector<std::vector<float>>& secondMoments() const { return v_; }
+  const std::vector<std::vector<int32_t>>& steps() const { return steps_; }
+
+ private:
+  void buildTables();
+
+  AdamParams params_;
+  std::vector<std::vector<float>> m_, v_;
+  std::vector<std::vector<int32_t>> steps_;
+  std::vector<float> correction1_, correction2_;  // 1 / (1 - beta^t), t = 0..kTable
+  float table_beta1_ = -1, table_beta2_ = -1;
+};
+
+}  // namespace radslam

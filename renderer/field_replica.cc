@@ -1,0 +1,74 @@
+#include "renderer/field_replica.h"
+
+#include <stdexcept>
+
+#include "mapper/field_io.h"
+
+namespace radslam {
+
+ApplyResult FieldReplica::apply(const FieldUpdate& update, std::string* error) {
+  std::string why;
+  // A mapper without a field yet sends updates with no layout and no blocks.
+  if (update.layout.empty() && update.blocks.empty()) {
+    if (update.is_snapshot) {
+      waiting_snapshot_ = false;
+      field_ = Field();
+      version_empty_ = update.version;
+      return ApplyResult::kApplied;
+    }
+    return ApplyResult::kStale;
+  }
+  const ApplyResult result = applyFieldUpdate(update, &field_, &why);
+  switch (result) {
+    case ApplyResult::kApplied:
+      if (update.is_snapshot) waiting_snapshot_ = false;
+      break;
+    case ApplyResult::kGap:
+      ++gaps_;
+      if (!waiting_snapshot_) {
+        waiting_snapshot_ = true;
+        if (request_snapshot_) request_snapshot_(why);
+      }
+      break;
+    case ApplyResult::kInvalid:
+      // A geometry change (mapper restarted with other voxel sizes) needs a snapshot too.
+      if (!waiting_snapshot_ && why.find("needs a snapshot") != std::string::npos) {
+        waiting_snapshot_ = true;
+        if (request_snapshot_) request_snapshot_(why);
+      }
+      break;
+    case ApplyResult::kStale:
+      break;
+  }
+  if (error) *error = why;
+  return result;
+}
+
+MarchParams FieldReplica::marchParams() const {
+  MarchParams mp;
+  mp.step_fine = params_.step_fine;
+  if (field_.initialized()) {
+    const float s = static_cast<float>(field_.geometry().fineVoxelSize());
+    mp.near = params_.near_voxels * s;
+    mp.far = params_.far_voxels * s;
+  }
+  return mp;
+}
+
+RenderImages FieldReplica::render(const SE3& T_world_cam, const CameraModel& camera,
+                                  const MarchParams* params) const {
+  if (camera.width <= 0 || camera.height <= 0 || !(camera.fx > 0) || !(camera.fy > 0))
+    throw std::invalid_argument("render: camera needs a positive size and focal lengths");
+  if (!field_.initialized()) {
+    RenderImages out;
+    out.color = cv::Mat(camera.height, camera.width, CV_32FC3, cv::Scalar::all(0));
+    out.depth = cv::Mat::zeros(camera.height, camera.width, CV_32FC1);
+    out.sigma = cv::Mat::zeros(camera.height, camera.width, CV_32FC1);
+    out.weight = cv::Mat::zeros(camera.height, camera.width, CV_32FC1);
+    return out;
+  }
+  return renderer_.render(field_, T_world_cam, camera, params ? *params : marchParams(),
+                          params_.threads);
+}
+
+}  // namespace radslam

@@ -1,0 +1,65 @@
+// The renderer's copy of the mapper's field, kept in step through FIELD updates
+// (mapper/field_io.h) and rendered with the mapper's own volume renderer, so a view of the
+// replica is the view the mapper would render of the same field.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <string>
+
+#include "common/lie.h"
+#include "common/types.h"
+#include "mapper/field.h"
+#include "mapper/field_io.h"
+#include "mapper/volume_renderer.h"
+
+namespace radslam {
+
+/// March parameters in fine voxels, as the mapper's (MapperParams::render_step_fine and
+/// TrainerParams::near_voxels; far is 1e5 fine voxels there too).
+struct ReplicaRenderParams {
+  float step_fine = 0.5f;
+  float near_voxels = 5;
+  float far_voxels = 1e5f;
+  int threads = 1;
+};
+
+class FieldReplica {
+ public:
+  /// Called when an update cannot be applied because earlier ones are missing (late join,
+  /// lost message): the owner asks the mapper for a snapshot. `reason` says why.
+  using SnapshotRequest = std::function<void(const std::string& reason)>;
+
+  explicit FieldReplica(ReplicaRenderParams params = ReplicaRenderParams()) : params_(params) {}
+  void setSnapshotRequest(SnapshotRequest callback) { request_snapshot_ = std::move(callback); }
+
+  /// Applies an update in version order or a snapshot whole. A non-snapshot update whose
+  /// base_version is ahead of the replica (or any update before the first snapshot when the
+  /// replica is empty and base_version > 0) is a gap: nothing changes and a snapshot is asked
+  /// for (once until one arrives). Returns the result; *error says what was wrong on kInvalid.
+  ApplyResult apply(const FieldUpdate& update, std::string* error = nullptr);
+
+  const Field& field() const { return field_; }
+  int64_t version() const { return field_.initialized() ? field_.version() : version_empty_; }
+  bool waitingForSnapshot() const { return waiting_snapshot_; }
+  int64_t gaps() const { return gaps_; }
+
+  /// The mapper's march parameters for this field (what render() uses by default).
+  MarchParams marchParams() const;
+  /// Renders a pinhole view (as Mapper::render: background and depth 0 before any field),
+  /// with marchParams() or the given parameters (faster previews). Throws
+  /// std::invalid_argument on a camera without positive size and focal lengths.
+  RenderImages render(const SE3& T_world_cam, const CameraModel& camera,
+                      const MarchParams* params = nullptr) const;
+
+ private:
+  ReplicaRenderParams params_;
+  Field field_;
+  VolumeRenderer renderer_;
+  SnapshotRequest request_snapshot_;
+  int64_t version_empty_ = 0;  // version of an (empty) replica before the field exists
+  bool waiting_snapshot_ = false;
+  int64_t gaps_ = 0;
+};
+
+}  // namespace radslam

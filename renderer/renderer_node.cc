@@ -1,0 +1,306 @@
+#include "renderer/renderer_node.h"
+
+#include <algorithm>
+#include <chrono>
+#include <iostream>
+#include <mutex>
+#include <stdexcept>
+
+#include "common/cli.h"
+#include "common/params.h"
+#include "renderer/render_service.h"
+
+namespace radslam {
+namespace {
+
+// Warn about the first few of a kind, then every 100th, so a bad stream cannot flood the log.
+bool shouldWarn(int64_t count) { return count <= 5 || count % 100 == 0; }
+
+void validate(const RendererParams& p) {
+  if (!(p.render_step_fine > 0)) throw std::invalid_argument("render_step_fine must be > 0");
+  if (!(p.near_voxels >= 0)) throw std::invalid_argument("near_voxels must be >= 0");
+  if (p.render_threads < 1) throw std::invalid_argument("render_threads must be >= 1");
+  if (!(p.preview_step_fine > 0)) throw std::invalid_argument("preview_step_fine must be > 0");
+  if (!(p.preview_min_transmittance >= 0 && p.preview_min_transmittance < 1))
+    throw std::invalid_argument("preview_min_transmittance must be in [0, 1)");
+  if (p.follow_width < 0 || p.follow_width > kMaxRenderSize)
+    throw std::invalid_argument("follow_width must be in [0, 4096] (0 = off)");
+  if (!(p.follow_rate_hz > 0)) throw std::invalid_argument("follow_rate_hz must be > 0");
+  if (!(p.status_rate_hz > 0)) throw std::invalid_argument("status_rate_hz must be > 0");
+  if (p.final_width < 0 || p.final_width > kMaxRenderSize)
+    throw std::invalid_argument("final_width must be in [0, 4096]");
+  if (p.video_width < 1 || p.video_width > kMaxRenderSize)
+    throw std::invalid_argument("video_width must be in [1, 4096]");
+  if (!(p.video_fps > 0)) throw std::invalid_argument("video_fps must be > 0");
+  if (p.video_max_frames < 1) throw std::invalid_argument("video_max_frames must be >= 1");
+}
+
+}  // namespace
+
+RendererParams loadRendererParams(const std::string& yaml_path,
+                                  const std::vector<std::string>& overrides, std::string* dump,
+                                  std::string* source) {
+  RendererParams p;
+  ParamReader r(yaml_path, "renderer");
+  for (const std::string& o : overrides) r.addOverride(o);
+  double step = p.render_step_fine, near = p.near_voxels;
+  r.get("render_step_fine", &step);
+  r.get("near_voxels", &near);
+  p.render_step_fine = static_cast<float>(step);
+  p.near_voxels = static_cast<float>(near);
+  r.get("render_threads", &p.render_threads);
+  r.get("preview_step_fine", &p.preview_step_fine);
+  r.get("preview_min_transmittance", &p.preview_min_transmittance);
+  r.get("follow_width", &p.follow_width);
+  r.get("follow_rate_hz", &p.follow_rate_hz);
+  r.get("status_rate_hz", &p.status_rate_hz);
+  r.get("final_renders", &p.final_renders);
+  r.get("final_width", &p.final_width);
+  r.get("video", &p.video);
+  r.get("video_width", &p.video_width);
+  r.get("video_fps", &p.video_fps);
+  r.get("video_max_frames", &p.video_max_frames);
+  r.finish();
+  try {
+    validate(p);
+  } catch (const std::invalid_argument& e) {
+    throw std::runtime_error(r.source() + ": renderer." + e.what());
+  }
+  if (dump) *dump = r.dump();
+  if (source) *source = r.source();
+  return p;
+}
+
+RendererNode::RendererNode(Bus* bus, RendererParams params, std::string out_dir)
+    : bus_(bus),
+      params_(params),
+      out_dir_(std::move(out_dir)),
+      replica_([&] {
+        ReplicaRenderParams rp;
+        rp.step_fine = params.render_step_fine;
+        rp.near_voxels = params.near_voxels;
+        rp.threads = params.render_threads;
+        return rp;
+      }()),
+      reporter_("renderer") {
+  validate(params_);
+  replica_.setSnapshotRequest([this](const std::string& reason) {
+    ++snapshots_requested_;
+    std::cerr << "radslam-renderer: asking the mapper for a snapshot: " << reason << "\n";
+    Control c;
+    c.command = ControlCommand::kSnapshot;
+    c.target = "mapper";
+    c.argument = "renderer";
+    bus_->publish(channel::kControl, c);
+  });
+  bus_->subscribe<FieldUpdate>(channel::kField, [this](const FieldUpdate& u) { onField(u); });
+  bus_->subscribe<RenderRequest>(channel::kRenderRequest,
+                                 [this](const RenderRequest& r) { onRenderRequest(r); });
+  bus_->subscribe<PoseStamped>(channel::kPose, [this](const PoseStamped& p) { onPose(p); });
+  bus_->subscribe<Frame>(channel::kCamera, [this](const Frame& f) {
+    last_camera_ = f.camera;
+    viewer_.setCamera(f);
+  });
+  bus_->subscribe<Keyframe>(channel::kKeyframe, [this](const Keyframe& k) { onKeyframe(k); });
+  bus_->subscribe<PoseStamped>(channel::kGroundTruth,
+                               [this](const PoseStamped& p) { viewer_.addGroundTruth(p); });
+  bus_->subscribe<Status>(channel::kStatus, [this](const Status& s) { viewer_.setStatus(s); });
+  bus_->subscribe<Control>(channel::kControl, [this](const Control& c) { onControl(c); });
+  if (params_.follow_width > 0) follow_thread_ = std::thread([this] { followLoop(); });
+  reporter_.setState(ProcessState::kRunning);
+}
+
+RendererNode::~RendererNode() {
+  stop_follow_ = true;
+  if (follow_thread_.joinable()) follow_thread_.join();
+}
+
+int64_t RendererNode::fieldVersion() const {
+  std::shared_lock<std::shared_mutex> lock(field_mutex_);
+  return replica_.version();
+}
+
+RenderResult RendererNode::render(const RenderRequest& request, bool preview) const {
+  std::shared_lock<std::shared_mutex> lock(field_mutex_);
+  if (!preview) return renderView(replica_, request);
+  MarchParams mp = replica_.marchParams();
+  mp.step_fine = static_cast<float>(params_.preview_step_fine);
+  mp.min_transmittance = static_cast<float>(params_.preview_min_transmittance);
+  return renderView(replica_, request, &mp);
+}
+
+void RendererNode::onField(const FieldUpdate& update) {
+  BusyTimer::Scope busy(reporter_.busy());
+  std::string error;
+  ApplyResult result;
+  {
+    std::unique_lock<std::shared_mutex> lock(field_mutex_);
+    result = replica_.apply(update, &error);
+    const Field& f = replica_.field();
+    viewer_.setField(replica_.version(), f.initialized() ? f.totalBlocks() : 0,
+                     f.initialized() ? f.boundsMin() : Eigen::Vector3f::Zero(),
+                     f.initialized() ? f.boundsMax() : Eigen::Vector3f::Zero());
+  }
+  if (result == ApplyResult::kInvalid) {
+    reporter_.setError(bus_->fullChannel(channel::kField) + ": " + error);
+    std::cerr << "radslam-renderer: warning: " << bus_->fullChannel(channel::kField)
+              << ": skipped update: " << error << "\n";
+  }
+}
+
+void RendererNode::onRenderRequest(const RenderRequest& request) {
+  RenderResult result;
+  {
+    BusyTimer::Scope busy(reporter_.busy());
+    result = render(request);
+  }
+  if (result.ok) {
+    ++renders_;
+    reporter_.itemHandled();
+  } else {
+    ++bad_requests_;
+    reporter_.setError(result.error);
+    if (shouldWarn(bad_requests_))
+      std::cerr << "radslam-renderer: warning: " << result.error << "\n";
+  }
+  bus_->publish(channel::kRender, result);
+}
+
+void RendererNode::onPose(const PoseStamped& pose) {
+  viewer_.addPose(pose);
+  ViewPose& v = trajectory_[pose.frame_index];
+  v.utime = pose.header.utime;
+  v.T_world_cam = pose.T_world_cam;
+  v.camera = last_camera_;
+}
+
+void RendererNode::onKeyframe(const Keyframe& keyframe) {
+  auto it = keyframe_versions_.find(keyframe.keyframe_id);
+  if (it != keyframe_versions_.end() && it->second > keyframe.version) return;
+  keyframe_versions_[keyframe.keyframe_id] = keyframe.version;
+  ViewPose& v = keyframes_[keyframe.keyframe_id];
+  v.utime = keyframe.header.utime;
+  v.T_world_cam = keyframe.T_world_cam;
+  v.camera = keyframe.camera;
+  viewer_.addKeyframe(keyframe.keyframe_id);
+}
+
+void RendererNode::onControl(const Control& control) {
+  if (!control.target.empty() && control.target != "renderer") return;
+  if (control.command == ControlCommand::kStop) control_stop_ = true;
+}
+
+void RendererNode::followLoop() {
+  using Clock = std::chrono::steady_clock;
+  int64_t rendered_seq = -1, rendered_version = -1;
+  const auto period = std::chrono::duration<double>(1.0 / params_.follow_rate_hz);
+  while (!stop_follow_) {
+    const auto t0 = Clock::now();
+    PoseStamped pose;
+    CameraModel camera;
+    int64_t seq = 0;
+    const int64_t version = fieldVersion();
+    if (viewer_.latestPose(&pose, &camera, &seq) &&
+        (seq != rendered_seq || version != rendered_version)) {
+      RenderRequest request;
+      request.T_world_cam = pose.T_world_cam;
+      request.camera = scaledCamera(camera, params_.follow_width);
+      request.channels = kRenderColor | kRenderDepth | kRenderSigma;
+      const RenderResult r = render(request, true);
+      if (r.ok) viewer_.setRender(r.color, r.depth, r.sigma);
+      rendered_seq = seq;
+      rendered_version = version;
+    }
+    // Sleep in short slices so that the destructor does not wait for a whole period.
+    while (!stop_follow_ && Clock::now() - t0 < period)
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+}
+
+void RendererNode::publishStatus(ProcessState state) {
+  reporter_.setState(state);
+  reporter_.setValue("field_version", static_cast<double>(fieldVersion()));
+  reporter_.setValue("renders", static_cast<double>(renders_));
+  reporter_.setValue("bad_requests", static_cast<double>(bad_requests_));
+  reporter_.setValue("snapshots_requested", static_cast<double>(snapshots_requested_));
+  reporter_.setValue("keyframes", static_cast<double>(keyframes_.size()));
+  const Status s = reporter_.make();
+  viewer_.setStatus(s);
+  bus_->publish(channel::kStatus, s);
+}
+
+int RendererNode::spinOnce(int timeout_ms) {
+  const int handled = bus_->handle(timeout_ms);
+  const int64_t now = wallClockMicros();
+  if (now - last_status_us_ >= static_cast<int64_t>(1e6 / params_.status_rate_hz)) {
+    last_status_us_ = now;
+    publishStatus(ProcessState::kRunning);
+  }
+  return handled;
+}
+
+int RendererNode::run(bool linger) {
+  bool log_ended = false;
+  while (!stopRequested() && !control_stop_) {
+    if (spinOnce(50) < 0) {  // end of a file:// log
+      log_ended = true;
+      break;
+    }
+  }
+  publishStatus(ProcessState::kIdle);
+  viewer_.setRunEnded(true);
+  writeFinal();
+  publishStatus(ProcessState::kDone);
+  if (linger) {
+    std::cerr << "radslam-renderer: run ended; still serving the final map (Ctrl-C to quit)\n";
+    while (!stopRequested()) {
+      if (log_ended || spinOnce(100) < 0) {
+        log_ended = true;
+        std::this_thread::sleep_for(std::chrono::milliseconds(100));
+      }
+    }
+  }
+  return 0;
+}
+
+void RendererNode::writeFinal() {
+  if (out_dir_.empty()) return;
+  std::shared_lock<std::shared_mutex> lock(field_mutex_);
+  if (!replica_.field().initialized()) {
+    std::cerr << "radslam-renderer: no field received: no final renders\n";
+    return;
+  }
+  try {
+    if (params_.final_renders) {
+      std::vector<ViewPose> views;
+      for (const auto& [id, v] : keyframes_) {
+        ViewPose view = v;
+        view.camera = scaledCamera(v.camera, params_.final_width);
+        views.push_back(view);
+      }
+      const int n = writeFinalRenders(replica_, views, out_dir_ + "/renders/final");
+      std::cerr << "radslam-renderer: wrote " << n << " keyframe renders to " << out_dir_
+                << "/renders/final\n";
+    }
+    if (params_.video && !trajectory_.empty()) {
+      std::vector<ViewPose> views;
+      const size_t step = (trajectory_.size() + params_.video_max_frames - 1) /
+                          static_cast<size_t>(params_.video_max_frames);
+      size_t i = 0;
+      for (const auto& [index, v] : trajectory_) {
+        if (i++ % step != 0 || v.camera.width <= 0) continue;
+        ViewPose view = v;
+        view.camera = scaledCamera(v.camera, params_.video_width);
+        views.push_back(view);
+      }
+      const std::string path = out_dir_ + "/renders/flythrough.avi";
+      const int n = writeFlyThrough(replica_, views, path, params_.video_fps);
+      std::cerr << "radslam-renderer: wrote " << n << " frames to " << path << "\n";
+    }
+  } catch (const std::exception& e) {
+    reporter_.setError(e.what());
+    std::cerr << "radslam-renderer: error: " << e.what() << "\n";
+  }
+}
+
+}  // namespace radslam

@@ -1,0 +1,315 @@
+// Field updates reproduce the mapper's field bitwise in a replica; checkpoints round-trip
+// exactly and resume training identically; keyframe versions replace or are ignored.
+#include "mapper/field_io.h"
+
+#include <cstdio>
+#include <fstream>
+
+#include <gtest/gtest.h>
+
+#include "common/synthetic.h"
+#include "mapper/mapper.h"
+
+namespace radslam {
+namespace {
+
+Keyframe keyframeOf(const SyntheticScene& scene, int frame, int id) {
+  const Frame f = scene.frame(frame);
+  Keyframe kf;
+  kf.header = f.header;
+  kf.keyframe_id = id;
+  kf.frame_index = frame;
+  kf.T_world_cam = scene.cameraPose(frame);
+  kf.camera = f.camera;
+  kf.color = f.color;
+  kf.depth = f.depth;
+  kf.depth_var = cv::Mat(f.depth.size(), CV_32FC1, cv::Scalar(1e-4));
+  return kf;
+}
+
+SyntheticScene tinyRoom() {
+  SyntheticConfig config;
+  config.scene = "room";
+  config.frames = 40;
+  config.width = 80;
+  config.height = 60;
+  config.stereo = false;
+  return SyntheticScene::make(config);
+}
+
+MapperParams smallParams() {
+  MapperParams params;
+  params.trainer.batch_rays = 512;
+  params.trainer.pose_warmup_rays = 500;  // poses move within the test
+  return params;
+}
+
+std::string tempPath(const std::string& name) { return ::testing::TempDir() + "/" + name; }
+
+TEST(FieldUpdates, ReplayReproducesTheFieldBitwise) {
+  const SyntheticScene scene = tinyRoom();
+  Mapper mapper(smallParams());
+  Field replica;
+  int64_t published = 0;
+  std::string error;
+  for (int i = 0; i < 4; ++i) {
+    mapper.addKeyframe(keyframeOf(scene, i * 10, i));
+    for (int k = 0; k < 3; ++k) {
+      mapper.train(2);
+      // Bounded updates: a few blocks at a time, the rest follow in later updates.
+      const FieldUpdate u = mapper.makeUpdate(published, 40);
+      EXPECT_FALSE(u.is_snapshot);
+      EXPECT_EQ(u.base_version, published);
+      if (u.blocks.empty()) continue;
+      ASSERT_EQ(applyFieldUpdate(u, &replica, &error), ApplyResult::kApplied) << error;
+      published = u.version;
+      EXPECT_EQ(replica.version(), published);
+    }
+  }
+  // Flush what is still pending: the replica then equals the mapper bit for bit.
+  for (FieldUpdate u = mapper.makeUpdate(published); !u.blocks.empty();
+       u = mapper.makeUpdate(published)) {
+    ASSERT_EQ(applyFieldUpdate(u, &replica, &error), ApplyResult::kApplied) << error;
+    published = u.version;
+  }
+  EXPECT_EQ(mapper.field().pendingBlocks(), 0);
+  EXPECT_TRUE(replica.sameContent(mapper.field()));
+  EXPECT_EQ(replica.version(), mapper.field().version());
+
+  // A snapshot rebuilds an identical replica from nothing.
+  Field fresh;
+  const FieldUpdate snap = mapper.makeSnapshot();
+  EXPECT_TRUE(snap.is_snapshot);
+  ASSERT_EQ(applyFieldUpdate(snap, &fresh, &error), ApplyResult::kApplied) << error;
+  EXPECT_TRUE(fresh.sameContent(mapper.field()));
+
+  // Renders of the replica are identical too (the renderer process relies on it).
+  const Keyframe kf = keyframeOf(scene, 5, 9);
+  const VolumeRenderer renderer;
+  MarchParams mp = mapper.marchParams();
+  const RenderImages a = renderer.render(mapper.field(), kf.T_world_cam, kf.camera, mp);
+  const RenderImages b = renderer.render(replica, kf.T_world_cam, kf.camera, mp);
+  EXPECT_EQ(cv::norm(a.color, b.color, cv::NORM_INF), 0);
+  EXPECT_EQ(cv::norm(a.depth, b.depth, cv::NORM_INF), 0);
+}
+
+TEST(FieldUpdates, StaleGapAndInvalidUpdates) {
+  const SyntheticScene scene = tinyRoom();
+  Mapper mapper(smallParams());
+  mapper.addKeyframe(keyframeOf(scene, 0, 0));
+  const FieldUpdate u1 = mapper.makeUpdate(0);
+  mapper.train(1);
+  const FieldUpdate u2 = mapper.makeUpdate(u1.version);
+  mapper.train(1);
+  const FieldUpdate u3 = mapper.makeUpdate(u2.version);
+  ASSERT_FALSE(u1.blocks.empty());
+  ASSERT_FALSE(u3.blocks.empty());
+  Field replica;
+  std::string error;
+  // u3 needs u2 first.
+  ASSERT_EQ(applyFieldUpdate(u1, &replica, &error), ApplyResult::kApplied) << error;
+  EXPECT_EQ(applyFieldUpdate(u3, &replica, &error), ApplyResult::kGap);
+  EXPECT_NE(error.find("replica is at"), std::string::npos) << error;
+  ASSERT_EQ(applyFieldUpdate(u2, &replica, &error), ApplyResult::kApplied) << error;
+  EXPECT_EQ(applyFieldUpdate(u2, &replica, &error), ApplyResult::kStale);
+  ASSERT_EQ(applyFieldUpdate(u3, &replica, &error), ApplyResult::kApplied) << error;
+
+  FieldUpdate bad = u3;
+  bad.layout = "rsvox9 f16";
+  EXPECT_EQ(applyFieldUpdate(bad, &replica, &error), ApplyResult::kInvalid);
+  EXPECT_NE(error.find("layout"), std::string::npos) << error;
+  bad = u3;
+  bad.version += 10;
+  bad.blocks[0].data.resize(7);
+  EXPECT_EQ(applyFieldUpdate(bad, &replica, &error), ApplyResult::kInvalid);
+  bad = u3;
+  bad.version += 10;
+  bad.blocks[0].level = 5;
+  EXPECT_EQ(applyFieldUpdate(bad, &replica, &error), ApplyResult::kInvalid);
+  bad = u3;
+  bad.version += 10;
+  bad.block_dim = 16;
+  EXPECT_EQ(applyFieldUpdate(bad, &replica, &error), ApplyResult::kInvalid);
+  bad = u3;
+  bad.version += 10;
+  bad.voxel_size[0] *= 2;  // another geometry needs a snapshot
+  EXPECT_EQ(applyFieldUpdate(bad, &replica, &error), ApplyResult::kInvalid);
+  EXPECT_EQ(replica.version(), u3.version);  // unchanged by the rejected updates
+}
+
+TEST(FieldUpdates, LayoutRoundTripsTheGeometryExactly) {
+  for (int sh : {0, 1}) {
+    const FieldGeometry g = FieldGeometry::make(0.0123456789, 3, 2, sh, -4.6f);
+    FieldGeometry back;
+    std::string error;
+    ASSERT_TRUE(parseFieldLayout(fieldLayout(g), g.voxel_size, &back, &error)) << error;
+    EXPECT_TRUE(back == g) << fieldLayout(g);
+  }
+}
+
+TEST(Checkpoint, RoundTripIsExactAndResumesIdentically) {
+  const SyntheticScene scene = tinyRoom();
+  Mapper a(smallParams());
+  for (int i = 0; i < 3; ++i) a.addKeyframe(keyframeOf(scene, i * 10, i));
+  a.train(8);
+  ASSERT_FALSE(a.takeRefinedPoses().empty());  // poses have moved: they must round-trip
+  a.train(1);
+  const std::string path = tempPath("mapper_checkpoint.bin");
+  a.saveCheckpoint(path);
+  Mapper b(smallParams());
+  b.loadCheckpoint(path);
+  EXPECT_TRUE(b.field().sameContent(a.field()));
+  EXPECT_EQ(b.field().version(), a.field().version());
+  EXPECT_EQ(b.field().pendingBlocks(), a.field().pendingBlocks());
+  ASSERT_EQ(b.keyframes().size(), a.keyframes().size());
+  for (int i = 0; i < a.keyframes().size(); ++i) {
+    const KeyframeEntry& ea = a.keyframes().entry(i);
+    const KeyframeEntry& eb = b.keyframes().entry(i);
+    EXPECT_EQ(eb.T_world_cam.matrix(), ea.T_world_cam.matrix());
+    EXPECT_EQ(eb.keyframe.T_world_cam.matrix(), ea.keyframe.T_world_cam.matrix());
+    EXPECT_EQ(eb.pose_m, ea.pose_m);
+    EXPECT_EQ(eb.pose_v, ea.pose_v);
+    EXPECT_EQ(eb.pose_steps, ea.pose_steps);
+    EXPECT_EQ(eb.loss_ema, ea.loss_ema);
+    EXPECT_EQ(eb.rays_trained, ea.rays_trained);
+    EXPECT_EQ(eb.keyframe.version, ea.keyframe.version);
+    EXPECT_EQ(eb.keyframe.header.utime, ea.keyframe.header.utime);
+    EXPECT_EQ(cv::norm(eb.keyframe.color, ea.keyframe.color, cv::NORM_INF), 0);
+    EXPECT_EQ(cv::norm(eb.keyframe.depth_var, ea.keyframe.depth_var, cv::NORM_INF), 0);
+  }
+  const SparseAdam& oa = a.trainer().optimizer();
+  const SparseAdam& ob = b.trainer().optimizer();
+  for (int l = 0; l < a.field().numLevels(); ++l) {
+    EXPECT_EQ(oa.firstMoments()[l], ob.firstMoments()[l]);
+    EXPECT_EQ(oa.secondMoments()[l], ob.secondMoments()[l]);
+    EXPECT_EQ(oa.steps()[l], ob.steps()[l]);
+  }
+  // Training on from the checkpoint is bit-identical to training on without it.
+  a.train(3);
+  b.train(3);
+  EXPECT_TRUE(b.field().sameContent(a.field()));
+  EXPECT_EQ(b.keyframes().entry(2).T_world_cam.matrix(),
+            a.keyframes().entry(2).T_world_cam.matrix());
+
+  // Without images: poses and field only.
+  const std::string light = tempPath("mapper_checkpoint_light.bin");
+  a.saveCheckpoint(light, false);
+  Mapper c(smallParams());
+  c.loadCheckpoint(light);
+  EXPECT_TRUE(c.field().sameContent(a.field()));
+  EXPECT_TRUE(c.keyframes().entry(1).keyframe.color.empty());
+  EXPECT_EQ(c.keyframes().entry(1).T_world_cam.matrix(),
+            a.keyframes().entry(1).T_world_cam.matrix());
+  EXPECT_NO_THROW(c.train(1));  // nothing to draw rays from, but no crash
+}
+
+TEST(Checkpoint, BadFilesGiveErrorsNamingTheFile) {
+  Mapper m;
+  const std::string missing = tempPath("no_such_checkpoint.bin");
+  try {
+    m.loadCheckpoint(missing);
+    FAIL() << "no exception";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find(missing), std::string::npos) << e.what();
+  }
+  const std::string garbage = tempPath("garbage_checkpoint.bin");
+  std::ofstream(garbage) << "this is not a checkpoint";
+  EXPECT_THROW(m.loadCheckpoint(garbage), std::runtime_error);
+  // Truncated: a valid checkpoint cut in half.
+  const SyntheticScene scene = tinyRoom();
+  Mapper a(smallParams());
+  a.addKeyframe(keyframeOf(scene, 0, 0));
+  a.train(1);
+  const std::string path = tempPath("truncated_checkpoint.bin");
+  a.saveCheckpoint(path);
+  std::ifstream in(path, std::ios::binary);
+  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  std::ofstream(path, std::ios::binary) << bytes.substr(0, bytes.size() / 2);
+  Mapper b(smallParams());
+  b.addKeyframe(keyframeOf(scene, 0, 0));
+  try {
+    b.loadCheckpoint(path);
+    FAIL() << "no exception";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("truncated"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(b.keyframes().size(), 1);  // a failed load leaves the mapper as it was
+  EXPECT_THROW(a.saveCheckpoint("/nonexistent_dir/x.bin"), std::runtime_error);
+}
+
+TEST(KeyframeStore, HigherVersionsReplaceLowerOnesAreIgnored) {
+  const SyntheticScene scene = tinyRoom();
+  Mapper mapper(smallParams());
+  Keyframe kf = keyframeOf(scene, 0, 7);
+  kf.version = 1;
+  EXPECT_EQ(mapper.addKeyframe(kf), KeyframeStore::InsertResult::kAdded);
+  mapper.addKeyframe(keyframeOf(scene, 10, 8));
+  Keyframe newer = keyframeOf(scene, 20, 7);  // same id, other image and pose
+  newer.version = 2;
+  EXPECT_EQ(mapper.addKeyframe(newer), KeyframeStore::InsertResult::kReplaced);
+  EXPECT_EQ(mapper.keyframes().size(), 2);
+  const KeyframeEntry& e = mapper.keyframes().entry(mapper.keyframes().find(7));
+  EXPECT_EQ(e.keyframe.version, 2);
+  EXPECT_EQ(e.T_world_cam.matrix(), newer.T_world_cam.matrix());
+  EXPECT_EQ(cv::norm(e.keyframe.color, newer.color, cv::NORM_INF), 0);
+  Keyframe older = keyframeOf(scene, 30, 7);
+  older.version = 1;
+  EXPECT_EQ(mapper.addKeyframe(older), KeyframeStore::InsertResult::kIgnored);
+  older.version = 2;  // equal: ignored too
+  EXPECT_EQ(mapper.addKeyframe(older), KeyframeStore::InsertResult::kIgnored);
+  EXPECT_EQ(mapper.keyframes().entry(mapper.keyframes().find(7)).T_world_cam.matrix(),
+            newer.T_world_cam.matrix());
+  EXPECT_EQ(mapper.keyframes().gaugeIndex(), mapper.keyframes().find(7));
+}
+
+TEST(KeyframeStore, RejectsMalformedKeyframesWithClearErrors) {
+  const SyntheticScene scene = tinyRoom();
+  KeyframeStore store;
+  auto expectError = [&](const Keyframe& kf, const std::string& what) {
+    try {
+      store.insert(kf);
+      ADD_FAILURE() << "no exception for " << what;
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find(what), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("keyframe 3"), std::string::npos) << e.what();
+    }
+  };
+  Keyframe kf = keyframeOf(scene, 0, 3);
+  Keyframe bad = kf;
+  bad.color = cv::Mat();
+  expectError(bad, "colour image is missing");
+  bad = kf;
+  bad.depth = cv::Mat(10, 10, CV_32FC1, cv::Scalar(1));
+  expectError(bad, "depth image is 10x10");
+  bad = kf;
+  bad.depth_var = cv::Mat(kf.depth.size(), CV_64FC1, cv::Scalar(1));
+  expectError(bad, "depth_var image has the wrong type");
+  bad = kf;
+  bad.camera.fx = 0;
+  expectError(bad, "focal");
+  bad = kf;
+  bad.camera.type = CameraModel::Type::kRadTan;
+  bad.camera.distortion = {0.1, 0, 0, 0};
+  expectError(bad, "distortion");
+  EXPECT_EQ(store.size(), 0);
+
+  // Depth from inverse depth; bad values become unknown; caller's images untouched.
+  Keyframe inv = kf;
+  inv.depth = cv::Mat();
+  inv.depth_var = cv::Mat();
+  inv.inv_depth = cv::Mat(kf.color.size(), CV_32FC1, cv::Scalar(0.5));
+  inv.inv_depth_var = cv::Mat(kf.color.size(), CV_32FC1, cv::Scalar(0.01));
+  inv.inv_depth.at<float>(0, 0) = NAN;
+  inv.inv_depth.at<float>(0, 1) = -1;
+  const cv::Mat before = inv.inv_depth.clone();
+  store.insert(inv);
+  const Keyframe& stored = store.entry(0).keyframe;
+  EXPECT_FLOAT_EQ(stored.depth.at<float>(5, 5), 2.f);
+  EXPECT_FLOAT_EQ(stored.depth_var.at<float>(5, 5), 0.01f * 16);  // var(1/z) z^4
+  EXPECT_EQ(stored.depth.at<float>(0, 0), 0.f);
+  EXPECT_EQ(stored.depth.at<float>(0, 1), 0.f);
+  EXPECT_EQ(cv::norm(inv.inv_depth, before, cv::NORM_INF | cv::NORM_RELATIVE), 0);
+}
+
+}  // namespace
+}  // namespace radslam

@@ -1,0 +1,141 @@
+#include "renderer/field_replica.h"
+
+#include <gtest/gtest.h>
+
+#include <opencv2/core.hpp>
+
+#include "mapper/field_io.h"
+#include "renderer/demo_field.h"
+
+namespace radslam {
+namespace {
+
+bool identical(const cv::Mat& a, const cv::Mat& b) {
+  if (a.size() != b.size() || a.type() != b.type()) return false;
+  const size_t bytes = a.total() * a.elemSize();
+  return std::memcmp(a.ptr(), b.ptr(), bytes) == 0;  // bitwise, NaN-safe
+}
+
+void expectSameImages(const RenderImages& a, const RenderImages& b) {
+  EXPECT_TRUE(identical(a.color, b.color));
+  EXPECT_TRUE(identical(a.depth, b.depth));
+  EXPECT_TRUE(identical(a.sigma, b.sigma));
+  EXPECT_TRUE(identical(a.weight, b.weight));
+}
+
+CameraModel viewCamera() {
+  CameraModel c;
+  c.width = 96;
+  c.height = 72;
+  c.fx = c.fy = 80;
+  c.cx = 47.5;
+  c.cy = 35.5;
+  return c;
+}
+
+TEST(FieldReplica, RendersExactlyWhatTheMapperRenders) {
+  DemoFieldOptions options;
+  options.train_steps = 5;
+  std::vector<Keyframe> keyframes;
+  auto mapper = makeDemoMapper(options, &keyframes);
+  FieldReplica replica;
+  std::string error;
+  ASSERT_EQ(replica.apply(mapper->makeUpdate(0), &error), ApplyResult::kApplied) << error;
+  EXPECT_TRUE(replica.field().sameContent(mapper->field()));
+  ASSERT_GT(cv::countNonZero(mapper->render(keyframes[1].T_world_cam, viewCamera()).weight), 100);
+  // A keyframe's pose and a pose off the training path.
+  const SE3 off =
+      keyframes[1].T_world_cam * SE3::exp((Vec6() << 0.1, -0.05, 0.1, 0.05, 0.1, 0).finished());
+  for (const SE3& T : {keyframes[1].T_world_cam, off}) {
+    expectSameImages(replica.render(T, viewCamera()), mapper->render(T, viewCamera()));
+  }
+}
+
+TEST(FieldReplica, LateJoinerConvergesThroughASnapshot) {
+  DemoFieldOptions options;
+  options.train_steps = 0;
+  auto mapper = makeDemoMapper(options);
+  // Updates 1..n, each after a few training steps; a snapshot at k.
+  const int n = 5, k = 2;
+  std::vector<FieldUpdate> updates;
+  FieldUpdate snapshot;
+  int64_t version = 0;
+  for (int i = 1; i <= n; ++i) {
+    mapper->train(2);
+    updates.push_back(mapper->makeUpdate(version));
+    ASSERT_FALSE(updates.back().blocks.empty());
+    version = updates.back().version;
+    if (i == k) snapshot = mapper->makeSnapshot();
+  }
+  ASSERT_TRUE(snapshot.is_snapshot);
+  ASSERT_EQ(snapshot.version, updates[k - 1].version);
+
+  FieldReplica a;
+  std::string error;
+  for (const FieldUpdate& u : updates)
+    ASSERT_EQ(a.apply(u, &error), ApplyResult::kApplied) << error;
+  EXPECT_TRUE(a.field().sameContent(mapper->field()));
+
+  FieldReplica b;
+  std::vector<std::string> requests;
+  b.setSnapshotRequest([&](const std::string& why) { requests.push_back(why); });
+  // Joins late: update k is not applicable to an empty replica.
+  EXPECT_EQ(b.apply(updates[k - 1], &error), ApplyResult::kGap);
+  EXPECT_EQ(b.apply(updates[k], &error), ApplyResult::kGap);
+  ASSERT_EQ(requests.size(), 1u);  // asked once until the snapshot arrives
+  EXPECT_TRUE(b.waitingForSnapshot());
+  EXPECT_EQ(b.apply(snapshot, &error), ApplyResult::kApplied) << error;
+  EXPECT_FALSE(b.waitingForSnapshot());
+  EXPECT_EQ(b.version(), snapshot.version);
+  for (int i = k; i < n; ++i)
+    ASSERT_EQ(b.apply(updates[i], &error), ApplyResult::kApplied) << error;
+  EXPECT_TRUE(b.field().sameContent(a.field()));
+  EXPECT_EQ(b.version(), a.version());
+  // Old updates are stale, not errors.
+  EXPECT_EQ(b.apply(updates[0], &error), ApplyResult::kStale);
+  const SE3 T = SE3::exp((Vec6() << 0, 0, -0.2, 0, 0, 0).finished());
+  expectSameImages(a.render(T, viewCamera()), b.render(T, viewCamera()));
+}
+
+TEST(FieldReplica, GapInTheMiddleAsksForASnapshotAndKeepsTheField) {
+  DemoFieldOptions options;
+  options.train_steps = 0;
+  auto mapper = makeDemoMapper(options);
+  FieldReplica replica;
+  int requests = 0;
+  replica.setSnapshotRequest([&](const std::string&) { ++requests; });
+  std::string error;
+  const FieldUpdate u1 = mapper->makeUpdate(0);
+  mapper->train(2);
+  const FieldUpdate u2 = mapper->makeUpdate(u1.version);
+  mapper->train(2);
+  const FieldUpdate u3 = mapper->makeUpdate(u2.version);
+  ASSERT_EQ(replica.apply(u1, &error), ApplyResult::kApplied);
+  EXPECT_EQ(replica.apply(u3, &error), ApplyResult::kGap);  // u2 lost
+  EXPECT_EQ(requests, 1);
+  EXPECT_FALSE(error.empty());
+  EXPECT_EQ(replica.version(), u1.version);
+  ASSERT_EQ(replica.apply(mapper->makeSnapshot(), &error), ApplyResult::kApplied);
+  EXPECT_TRUE(replica.field().sameContent(mapper->field()));
+}
+
+TEST(FieldReplica, MalformedUpdateIsRejectedAndEmptyReplicaRendersBackground) {
+  FieldReplica replica;
+  FieldUpdate bad;
+  bad.version = 1;
+  bad.layout = "not a layout";
+  bad.voxel_size = {0.1};
+  bad.block_dim = 8;
+  bad.blocks.resize(1);
+  std::string error;
+  EXPECT_EQ(replica.apply(bad, &error), ApplyResult::kInvalid);
+  EXPECT_FALSE(error.empty());
+  const RenderImages r = replica.render(SE3(), viewCamera());
+  EXPECT_EQ(r.color.size(), cv::Size(96, 72));
+  EXPECT_EQ(cv::countNonZero(r.depth), 0);
+  CameraModel zero;
+  EXPECT_THROW(replica.render(SE3(), zero), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace radslam

@@ -1,0 +1,334 @@
+#include "tracker/frontend.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <vector>
+
+#include <gtest/gtest.h>
+#include <opencv2/imgproc.hpp>
+
+#include "common/camera.h"
+#include "common/synthetic.h"
+#include "tracker/frontend_flow.h"
+
+namespace radslam {
+namespace {
+
+constexpr int kCell = 8;
+
+CameraModel pinhole(int w, int h, double f) {
+  CameraModel c;
+  c.width = w;
+  c.height = h;
+  c.fx = c.fy = f;
+  c.cx = 0.5 * (w - 1);
+  c.cy = 0.5 * (h - 1);
+  return c;
+}
+
+TEST(GridGeometry, PixelCentreConvention) {
+  CameraModel work = pinhole(512, 384, 400);
+  work.cx = 260.25;
+  work.cy = 190.5;
+  const GridGeometry g = makeGridGeometry(work, kCell);
+  EXPECT_EQ(g.grid.width, 64);
+  EXPECT_EQ(g.grid.height, 48);
+  // Grid pixel u is working pixel 8 u + 3.5: the principal point maps accordingly.
+  EXPECT_DOUBLE_EQ(g.grid.cx, (work.cx - 3.5) / 8);
+  EXPECT_DOUBLE_EQ(g.grid.cy, (work.cy - 3.5) / 8);
+  EXPECT_DOUBLE_EQ(g.grid.fx, work.fx / 8);
+  // A 3-d point projects consistently at both resolutions.
+  const Vec3 p(0.3, -0.2, 2.0);
+  const Eigen::Vector2d pw = project(work, p), pg = project(g.grid, p);
+  EXPECT_NEAR(8 * pg.x() + 3.5, pw.x(), 1e-9);
+  EXPECT_NEAR(8 * pg.y() + 3.5, pw.y(), 1e-9);
+  EXPECT_THROW(makeGridGeometry(pinhole(500, 384, 400), kCell), std::invalid_argument);
+}
+
+TEST(GridGeometry, WorkingSizeKeepsAspectInCellMultiples) {
+  EXPECT_EQ(workingSize(640, 480, 512, kCell), cv::Size(512, 384));
+  EXPECT_EQ(workingSize(1226, 370, 512, kCell), cv::Size(512, 152));
+  EXPECT_EQ(workingSize(320, 240, 512, kCell), cv::Size(320, 240));  // never upsampled
+  EXPECT_EQ(workingSize(1200, 680, 0, kCell), cv::Size(1200, 680));
+  EXPECT_THROW(workingSize(10, 10, 512, kCell), std::invalid_argument);
+}
+
+TEST(ImagePreparer, UndistortsAndHalvesLargeInput) {
+  // TUM fr1: distorted 640x480 -> pinhole 512x384.
+  CameraModel tum = pinhole(640, 480, 517.3);
+  tum.type = CameraModel::Type::kRadTan;
+  tum.distortion = {0.2624, -0.9531, -0.0054, 0.0026, 1.1633};
+  const ImagePreparer prep(tum, 512, kCell);
+  EXPECT_EQ(prep.geometry().working.width, 512);
+  EXPECT_EQ(prep.geometry().working.height, 384);
+  EXPECT_EQ(prep.geometry().working.type, CameraModel::Type::kPinhole);
+  Frame frame;
+  frame.camera = tum;
+  frame.color = cv::Mat(480, 640, CV_8UC3, cv::Scalar(10, 20, 30));
+  const PreparedImage out = prep.prepare(frame, true);
+  EXPECT_EQ(out.grey.size(), cv::Size(512, 384));
+  EXPECT_EQ(out.color.type(), CV_8UC3);
+
+  // KITTI-like: 1226x370 pinhole -> 512x152; a vertical bar keeps its place.
+  const CameraModel kitti = pinhole(1226, 370, 707.09);
+  const ImagePreparer kp(kitti, 512, kCell);
+  Frame kf;
+  kf.camera = kitti;
+  kf.color = cv::Mat(370, 1226, CV_8UC1, cv::Scalar(0));
+  kf.color.colRange(600, 640).setTo(255);
+  const PreparedImage ko = kp.prepare(kf, false);
+  ASSERT_EQ(ko.grey.size(), cv::Size(512, 152));
+  const CameraModel& w = kp.geometry().working;
+  const double bar_centre = (619.5 + 0.5) * w.width / 1226.0 - 0.5;
+  cv::Moments m = cv::moments(ko.grey.row(70), false);
+  EXPECT_NEAR(m.m10 / m.m00, bar_centre, 0.3);
+}
+
+TEST(ImagePreparer, RejectsBadFrames) {
+  const CameraModel cam = pinhole(64, 48, 50);
+  const ImagePreparer prep(cam, 64, kCell);
+  Frame f;
+  f.camera = cam;
+  EXPECT_THROW(prep.prepare(f, false), std::invalid_argument);  // empty
+  f.color = cv::Mat(40, 64, CV_8UC1, cv::Scalar(0));
+  EXPECT_THROW(prep.prepare(f, false), std::invalid_argument);  // size differs
+  f.color = cv::Mat(48, 64, CV_8UC1, cv::Scalar(0));
+  f.depth = cv::Mat(48, 64, CV_32FC1, cv::Scalar(std::numeric_limits<float>::quiet_NaN()));
+  EXPECT_THROW(prep.prepare(f, false), std::invalid_argument);  // NaN depth
+  f.depth.release();
+  f.camera.fx = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THROW(prep.prepare(f, false), std::invalid_argument);  // NaN intrinsics
+  f.camera = cam;
+  f.right = f.color.clone();
+  EXPECT_THROW(prep.prepare(f, false), std::invalid_argument);  // right without baseline
+}
+
+TEST(Keyframes, SelectionTriggersAtTheThreshold) {
+  const cv::Size grid(64, 48);
+  const cv::Mat weight(grid, CV_32FC2, cv::Scalar(1, 1));
+  auto shifted = [&](double du, double dv) {
+    cv::Mat t(grid, CV_32FC2);
+    for (int v = 0; v < grid.height; ++v) {
+      for (int u = 0; u < grid.width; ++u) {
+        t.at<cv::Vec2f>(v, u) = cv::Vec2f(static_cast<float>(u + du), static_cast<float>(v + dv));
+      }
+    }
+    return t;
+  };
+  const FlowMotion below = measureFlowMotion(shifted(1.44, 1.92), weight);  // |(1.44, 1.92)| = 2.4
+  const FlowMotion above = measureFlowMotion(shifted(1.56, 2.08), weight);  // 2.6
+  EXPECT_NEAR(below.mean_flow_px, 2.4, 1e-5);
+  EXPECT_NEAR(above.mean_flow_px, 2.6, 1e-5);
+  EXPECT_DOUBLE_EQ(below.valid_fraction, 1.0);
+  EXPECT_FALSE(isNewKeyframe(below, 2.5, 0.3));
+  EXPECT_TRUE(isNewKeyframe(above, 2.5, 0.3));
+  // Zero-weight pixels do not count; losing most of them forces a keyframe.
+  cv::Mat sparse(grid, CV_32FC2, cv::Scalar(0, 0));
+  sparse.rowRange(0, 10).setTo(cv::Scalar(1, 1));
+  const FlowMotion lost = measureFlowMotion(shifted(0.5, 0), sparse);
+  EXPECT_NEAR(lost.valid_fraction, 10.0 / 48, 1e-9);
+  EXPECT_TRUE(isNewKeyframe(lost, 2.5, 0.3));
+}
+
+TEST(Flow, PredictedFlowFollowsTheGridConvention) {
+  const GridGeometry g = makeGridGeometry(pinhole(64, 48, 50), kCell);
+  cv::Mat targets(g.gridSize(), CV_32FC2);
+  for (int v = 0; v < targets.rows; ++v) {
+    for (int u = 0; u < targets.cols; ++u)
+      targets.at<cv::Vec2f>(v, u) = cv::Vec2f(u + 1.5f, v - 0.5f);
+  }
+  targets.at<cv::Vec2f>(2, 3) = cv::Vec2f(std::numeric_limits<float>::quiet_NaN(), 0);
+  const cv::Mat flow = predictedFlow(targets, g);
+  ASSERT_EQ(flow.size(), g.workingSize());
+  for (int y = 0; y < flow.rows; ++y) {
+    for (int x = 0; x < flow.cols; ++x) {
+      EXPECT_NEAR(flow.at<cv::Vec2f>(y, x)[0], 12.0f, 1e-4);  // 8 x 1.5 working px
+      EXPECT_NEAR(flow.at<cv::Vec2f>(y, x)[1], -4.0f, 1e-4);
+    }
+  }
+  EXPECT_TRUE(predictedFlow(cv::Mat(), g).empty());
+}
+
+// Textured images with a textured square that moves over the background: the background the
+// square covers in b has no match (occlusion), everything else is a pure translation.
+struct OcclusionPair {
+  cv::Mat a, b;
+  cv::Rect covered_in_b;  // region of a's background hidden in b
+};
+
+cv::Mat texture(cv::Size size, int seed) {
+  cv::RNG rng(seed);
+  cv::Mat noise(size, CV_32FC1);
+  rng.fill(noise, cv::RNG::UNIFORM, 0, 255);
+  cv::Mat smooth;
+  cv::GaussianBlur(noise, smooth, cv::Size(0, 0), 2.0);
+  cv::normalize(smooth, smooth, 0, 255, cv::NORM_MINMAX);
+  cv::Mat out;
+  smooth.convertTo(out, CV_8U);
+  return out;
+}
+
+OcclusionPair makeOcclusionPair() {
+  const cv::Size size(256, 192);
+  const cv::Mat bg = texture(cv::Size(size.width + 64, size.height + 64), 1);
+  const cv::Mat fg = texture(cv::Size(64, 64), 2);
+  OcclusionPair p;
+  // Background shifts by 4 px right between a and b; the square jumps 40 px left.
+  p.a = bg(cv::Rect(32, 32, size.width, size.height)).clone();
+  p.b = bg(cv::Rect(28, 32, size.width, size.height)).clone();
+  fg.copyTo(p.a(cv::Rect(136, 64, 64, 64)));
+  fg.copyTo(p.b(cv::Rect(96, 64, 64, 64)));
+  // In a, background at x in [96 - 4, 136 - 4) is covered in b (x_b = x_a + 4 in [96, 136)).
+  p.covered_in_b = cv::Rect(92, 64, 40, 64);
+  return p;
+}
+
+TEST(Flow, ForwardBackwardFailureLowersConfidence) {
+  const OcclusionPair p = makeOcclusionPair();
+  const GridGeometry g = makeGridGeometry(pinhole(256, 192, 200), kCell);
+  FlowOptions options;
+  DenseFlow flow(options);
+  const cv::Mat f_ab = flow.compute(p.a, p.b);
+  const cv::Mat f_ba = flow.compute(p.b, p.a);
+  const Correspondences c = flowToCorrespondences(p.a, p.b, f_ab, f_ba, g, options);
+  double w_occ = 0, w_bg = 0;
+  int n_occ = 0, n_bg = 0;
+  for (int v = 0; v < c.weight.rows; ++v) {
+    for (int u = 0; u < c.weight.cols; ++u) {
+      const cv::Rect cell(kCell * u, kCell * v, kCell, kCell);
+      const double w = c.weight.at<cv::Vec2f>(v, u)[0];
+      if ((cell & p.covered_in_b) == cell) {
+        w_occ += w;
+        ++n_occ;
+      } else if ((cell & cv::Rect(92, 56, 112, 80)).area() == 0 && u > 1 && u < c.weight.cols - 2) {
+        w_bg += w;  // background well away from the square and from the image border
+        ++n_bg;
+      }
+    }
+  }
+  ASSERT_GT(n_occ, 10);
+  ASSERT_GT(n_bg, 100);
+  w_occ /= n_occ;
+  w_bg /= n_bg;
+  EXPECT_LT(w_occ, 0.2 * w_bg) << "occluded mean weight " << w_occ << ", background " << w_bg;
+  // The background is a 4 px = 0.5 grid px translation and is found as such.
+  int good = 0, total = 0;
+  for (int v = 2; v < c.target.rows - 2; ++v) {
+    for (int u = 2; u < c.target.cols - 2; ++u) {
+      const cv::Rect cell(kCell * u, kCell * v, kCell, kCell);
+      if ((cell & cv::Rect(84, 56, 124, 80)).area() > 0) continue;
+      if (c.weight.at<cv::Vec2f>(v, u)[0] <= 0) continue;
+      ++total;
+      const cv::Vec2f t = c.target.at<cv::Vec2f>(v, u);
+      good += std::hypot(t[0] - (u + 0.5), t[1] - v) < 0.1;
+    }
+  }
+  EXPECT_GT(good, 0.95 * total);
+}
+
+// True grid target of each cell of a: the mean over the cell of the exact reprojection of its
+// working pixels (rendered depth) into b.
+cv::Mat trueTargets(const cv::Mat& depth_a, const SE3& T_b_a, const GridGeometry& g) {
+  cv::Mat flow(depth_a.size(), CV_32FC2, cv::Scalar(0, 0));
+  cv::Mat valid(depth_a.size(), CV_32FC1, cv::Scalar(0));
+  for (int y = 0; y < depth_a.rows; ++y) {
+    for (int x = 0; x < depth_a.cols; ++x) {
+      const float z = depth_a.at<float>(y, x);
+      if (!(z > 0)) continue;
+      const Vec3 p = T_b_a * unproject(g.working, Eigen::Vector2d(x, y), z);
+      if (p.z() <= 0) continue;
+      const Eigen::Vector2d q = project(g.working, p);
+      flow.at<cv::Vec2f>(y, x) =
+          cv::Vec2f(static_cast<float>(q.x() - x), static_cast<float>(q.y() - y));
+      valid.at<float>(y, x) = 1;
+    }
+  }
+  cv::Mat mean_flow, mean_valid;
+  cv::resize(flow, mean_flow, g.gridSize(), 0, 0, cv::INTER_AREA);
+  cv::resize(valid, mean_valid, g.gridSize(), 0, 0, cv::INTER_AREA);
+  cv::Mat t(g.gridSize(), CV_32FC2);
+  for (int v = 0; v < t.rows; ++v) {
+    for (int u = 0; u < t.cols; ++u) {
+      const cv::Vec2f f = mean_flow.at<cv::Vec2f>(v, u);
+      t.at<cv::Vec2f>(v, u) = mean_valid.at<float>(v, u) > 0.999f
+                                  ? cv::Vec2f(u + f[0] / kCell, v + f[1] / kCell)
+                                  : cv::Vec2f(std::numeric_limits<float>::quiet_NaN(), 0);
+    }
+  }
+  return t;
+}
+
+TEST(Flow, TargetsMatchTrueReprojectionOnSyntheticRoom) {
+  SyntheticConfig config;
+  config.scene = "room";
+  config.width = 320;
+  config.height = 240;
+  config.frames = 10;
+  config.stereo = false;
+  const SyntheticScene scene = SyntheticScene::make(config);
+  const CameraModel cam = scene.camera();
+  const GridGeometry g = makeGridGeometry(cam, kCell);
+  const int fa = 0, fb = 6;  // ~9 cm and a few degrees apart
+  const RenderedView va = scene.render(scene.cameraPose(fa), cam, fa);
+  const RenderedView vb = scene.render(scene.cameraPose(fb), cam, fb);
+  const cv::Mat a = toGrey(va.color), b = toGrey(vb.color);
+  const SE3 T_b_a = scene.cameraPose(fb).inverse() * scene.cameraPose(fa);
+  const cv::Mat truth = trueTargets(va.depth, T_b_a, g);
+
+  FlowOptions options;
+  DenseFlow flow(options);
+  // Warm start from a slightly wrong prediction (the truth shifted by 0.3 grid px).
+  cv::Mat predicted = truth.clone();
+  predicted += cv::Scalar(0.3, -0.3);
+  // The backward flow starts from the negated prediction (what the tracker does for frames,
+  // whose depth is unknown).
+  const cv::Mat init = predictedFlow(predicted, g);
+  const cv::Mat f_ab = flow.compute(a, b, init);
+  const cv::Mat f_ba = flow.compute(b, a, -init);
+  const Correspondences c = flowToCorrespondences(a, b, f_ab, f_ba, g, options);
+  EXPECT_GT(c.valid_fraction, 0.6);
+
+  // Among confident pixels (weight above the median of the valid ones), most errors are
+  // small compared to the 2-3 px flow.
+  std::vector<float> weights;
+  for (int v = 0; v < c.weight.rows; ++v) {
+    for (int u = 0; u < c.weight.cols; ++u) {
+      const float w = c.weight.at<cv::Vec2f>(v, u)[0];
+      if (w > 0 && std::isfinite(truth.at<cv::Vec2f>(v, u)[0])) weights.push_back(w);
+    }
+  }
+  ASSERT_GT(weights.size(), 500u);
+  std::nth_element(weights.begin(), weights.begin() + weights.size() / 2, weights.end());
+  const float w_median = weights[weights.size() / 2];
+  std::vector<double> errors, all_errors;
+  double whitened = 0;
+  for (int v = 0; v < c.weight.rows; ++v) {
+    for (int u = 0; u < c.weight.cols; ++u) {
+      const cv::Vec2f t = truth.at<cv::Vec2f>(v, u), m = c.target.at<cv::Vec2f>(v, u);
+      const float w = c.weight.at<cv::Vec2f>(v, u)[0];
+      if (!(w > 0) || !std::isfinite(t[0])) continue;
+      const double e = std::hypot(t[0] - m[0], t[1] - m[1]);
+      all_errors.push_back(e);
+      whitened += w * e * e;
+      if (w >= w_median) errors.push_back(e);
+    }
+  }
+  std::sort(errors.begin(), errors.end());
+  std::sort(all_errors.begin(), all_errors.end());
+  const double p50 = errors[errors.size() / 2], p90 = errors[errors.size() * 9 / 10];
+  RecordProperty("confident_median_error_px", std::to_string(p50));
+  RecordProperty("confident_p90_error_px", std::to_string(p90));
+  EXPECT_LT(p50, 0.1) << "grid px";
+  EXPECT_LT(p90, 0.3) << "grid px";
+  // The confident half is at least as accurate as all valid pixels.
+  EXPECT_LE(p50, all_errors[all_errors.size() / 2] + 1e-9);
+  // Weights are inverse variances of the right order: the mean whitened squared error of a
+  // 2-d residual is 2 for a calibrated model; accept a factor 5 either way.
+  const double mean_whitened = whitened / all_errors.size();
+  EXPECT_GT(mean_whitened, 2.0 / 5) << mean_whitened;
+  EXPECT_LT(mean_whitened, 2.0 * 5) << mean_whitened;
+}
+
+}  // namespace
+}  // namespace radslam

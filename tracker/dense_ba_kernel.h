@@ -1,0 +1,92 @@
+// Per-pixel kernels shared by dense BA and motion-only alignment: the inverse-depth reprojection
+// with its analytic Jacobians and the Huber kernel. Header-only so the inner loops inline them.
+#pragma once
+
+#include <cmath>
+
+#include <Eigen/Core>
+
+namespace radslam {
+namespace dense_ba {
+
+/// Pinhole intrinsics at BA grid resolution (pixels), in the scalar type of the inner loop.
+template <typename S>
+struct Pinhole {
+  S fx, fy, cx, cy;
+};
+
+template <typename S>
+using Mat26T = Eigen::Matrix<S, 2, 6>;
+template <typename S>
+using Vec2T = Eigen::Matrix<S, 2, 1>;
+
+/// Reprojects the point seen at normalised coordinates (x, y) = ((u - cx) / fx, (v - cy) / fy)
+/// in camera i with inverse depth d (1/m) into camera j, T_j_i = (R, t).
+///
+/// The point is used in homogeneous form Y = R (x, y, 1) + t d = d * p_j, whose projection is
+/// that of p_j and which stays finite as d -> 0 (points at infinity). Y.z = z_j / z_i is the
+/// ratio of the point's depths in j and i; the point is rejected (returns false) when it is
+/// below min_depth_ratio (behind camera j or much closer to it), as DROID-SLAM's MIN_DEPTH test,
+/// which is invariant to the arbitrary monocular scale.
+///
+/// On success writes the pixel in j and, when non-null,
+///  J_xi: d pixel / d xi for a LEFT perturbation of T_j_i: T_j_i <- Exp(xi) T_j_i, xi = (v, w);
+///  J_d:  d pixel / d d.
+/// With right perturbations T_world_i <- T_world_i Exp(delta_i), T_world_j <- T_world_j
+/// Exp(delta_j) one has xi = Ad(T_j_i) delta_i - delta_j, so
+///  d pixel / d delta_i = J_xi Ad(T_j_i) and d pixel / d delta_j = -J_xi.
+template <typename S>
+inline bool reproject(const Eigen::Matrix<S, 3, 3>& R, const Eigen::Matrix<S, 3, 1>& t,
+                      const Pinhole<S>& cam, S x, S y, S d, S min_depth_ratio, S* pu, S* pv,
+                      Mat26T<S>* J_xi, Vec2T<S>* J_d) {
+  const S X = R(0, 0) * x + R(0, 1) * y + R(0, 2) + t(0) * d;
+  const S Y = R(1, 0) * x + R(1, 1) * y + R(1, 2) + t(1) * d;
+  const S Z = R(2, 0) * x + R(2, 1) * y + R(2, 2) + t(2) * d;
+  if (!(Z > min_depth_ratio)) return false;
+  const S iz = S(1) / Z;
+  const S xn = X * iz;
+  const S yn = Y * iz;
+  *pu = cam.fx * xn + cam.cx;
+  *pv = cam.fy * yn + cam.cy;
+  if (J_xi) {
+    // d pixel / dY = [fx iz, 0, -fx xn iz; 0, fy iz, -fy yn iz]; dY/dxi = [d I, -hat(Y)].
+    const S fxiz = cam.fx * iz;
+    const S fyiz = cam.fy * iz;
+    auto& J = *J_xi;
+    J(0, 0) = fxiz * d;
+    J(0, 1) = S(0);
+    J(0, 2) = -fxiz * xn * d;
+    J(0, 3) = -cam.fx * xn * yn;
+    J(0, 4) = cam.fx * (S(1) + xn * xn);
+    J(0, 5) = -cam.fx * yn;
+    J(1, 0) = S(0);
+    J(1, 1) = fyiz * d;
+    J(1, 2) = -fyiz * yn * d;
+    J(1, 3) = -cam.fy * (S(1) + yn * yn);
+    J(1, 4) = cam.fy * xn * yn;
+    J(1, 5) = cam.fy * xn;
+  }
+  if (J_d) {
+    // dY/dd = t.
+    (*J_d)(0) = cam.fx * iz * (t(0) - xn * t(2));
+    (*J_d)(1) = cam.fy * iz * (t(1) - yn * t(2));
+  }
+  return true;
+}
+
+/// Huber kernel on the whitened residual norm s = sqrt(r^T W r) with threshold k (k <= 0:
+/// plain least squares). Returns the robust cost rho (= s^2 below k, 2 k s - k^2 above, so the
+/// cost is continuous with continuous slope) and writes the IRLS weight rho'(s^2) = min(1, k/s).
+template <typename S>
+inline S huber(S s2, S k, S* irls_weight) {
+  if (k <= S(0) || s2 <= k * k) {
+    *irls_weight = S(1);
+    return s2;
+  }
+  const S s = std::sqrt(s2);
+  *irls_weight = k / s;
+  return S(2) * k * s - k * k;
+}
+
+}  // namespace dense_ba
+}  // namespace radslam

@@ -1,0 +1,102 @@
+// The tracker's image front end: input frames undistorted and resampled to the working
+// resolution, the BA grid that goes with it, and the keyframe decision. Dense flow and its
+// confidence are in tracker/frontend_flow.h. DESIGN.md section 3.
+//
+/// Resolutions. The working image is W x H (W, H multiples of the grid cell c, default 8); the
+/// BA grid is (W / c) x (H / c). Grid pixel (u, v) is the c x c block of working pixels
+/// [c u, c u + c) x [c v, c v + c): its centre is working pixel (c u + (c - 1) / 2, ...), e.g.
+/// 8 u + 3.5. This is cv::resize's pixel-centre convention (INTER_AREA averages exactly those
+/// blocks, INTER_LINEAR upsampling interpolates between those centres) and scaleCamera's, so
+/// the grid camera is scaleCamera(working camera, W / c, H / c).
+#pragma once
+
+#include <memory>
+#include <optional>
+#include <string>
+
+#include <opencv2/core.hpp>
+
+#include "common/camera.h"
+#include "common/types.h"
+
+namespace radslam {
+
+/// Working-resolution and BA-grid cameras (pinhole, undistorted).
+struct GridGeometry {
+  int cell = 8;         // working pixels per grid pixel, each direction
+  CameraModel working;  // W x H, W and H multiples of cell
+  CameraModel grid;     // (W / cell) x (H / cell)
+  cv::Size workingSize() const { return {working.width, working.height}; }
+  cv::Size gridSize() const { return {grid.width, grid.height}; }
+};
+
+/// The geometry for a pinhole working camera whose size is a multiple of cell. Throws
+/// std::invalid_argument otherwise.
+GridGeometry makeGridGeometry(const CameraModel& working, int cell);
+
+/// Working size for an input of input_width x input_height: width working_width (never more
+/// than the input width) rounded down to a multiple of cell, height keeping the aspect ratio,
+/// rounded to the nearest multiple of cell (at least 2 cells each way). working_width <= 0
+/// keeps the input width. Throws std::invalid_argument when the input is smaller than 2 cells.
+cv::Size workingSize(int input_width, int input_height, int working_width, int cell);
+
+/// A frame at working resolution.
+struct PreparedImage {
+  cv::Mat grey;        // CV_8UC1 working size
+  cv::Mat color;       // CV_8UC3 (or CV_8UC1 for grey input) working size; only when requested
+  cv::Mat right_grey;  // CV_8UC1 working size; stereo input only
+  cv::Mat depth;       // CV_32FC1 m, 0 = invalid, working size (nearest neighbour); RGB-D only
+};
+
+/// Undistorts and resamples frames of one camera to the working resolution. Large downscales
+/// first halve the image with INTER_AREA (so a 1226-wide KITTI image does not alias), then one
+/// remap (or, for an undistorted camera, one INTER_AREA resize) reaches the working size.
+class ImagePreparer {
+ public:
+  /// Throws std::invalid_argument on an invalid camera or a working size it cannot make.
+  ImagePreparer(const CameraModel& input, int working_width, int cell);
+
+  /// True when frames of `camera` can go through this preparer (same size and intrinsics).
+  bool matches(const CameraModel& camera) const;
+  const CameraModel& input() const { return input_; }
+  const GridGeometry& geometry() const { return geometry_; }
+
+  /// Grey (always), colour (when want_color), right grey (when the frame has one) and depth
+  /// (when the frame has one). Throws std::invalid_argument naming what is wrong with the
+  /// frame's images (empty, size differs from the camera, unsupported type).
+  PreparedImage prepare(const Frame& frame, bool want_color) const;
+  /// Colour of a frame already validated by prepare() (done only for keyframes).
+  cv::Mat prepareColor(const cv::Mat& color) const;
+
+ private:
+  cv::Mat resample(const cv::Mat& image, bool nearest) const;
+
+  CameraModel input_;
+  int prescale_ = 1;  // input is first reduced by this factor (power of 2)
+  cv::Size prescaled_size_;
+  bool distorted_ = false;
+  std::unique_ptr<Undistorter> undistorter_;
+  GridGeometry geometry_;
+};
+
+/// Throws std::invalid_argument naming what is wrong with a frame's content: empty colour,
+/// unsupported image types, images whose size differs from the camera's, non-finite or
+/// non-positive intrinsics, a right image without a positive baseline.
+void validateFrame(const Frame& frame);
+
+/// Mean displacement |target(p) - p| (grid pixels) over the pixels with a positive weight, and
+/// the fraction of such pixels; the keyframe test of DROID-SLAM's motion filter.
+struct FlowMotion {
+  double mean_flow_px = 0;    // grid px
+  double valid_fraction = 0;  // [0, 1]
+};
+FlowMotion measureFlowMotion(const cv::Mat& target, const cv::Mat& weight);
+
+/// A new keyframe when the mean flow to the last keyframe exceeds threshold_px (grid px) or
+/// when fewer than min_valid_fraction of the last keyframe's pixels are still tracked.
+bool isNewKeyframe(const FlowMotion& motion, double threshold_px, double min_valid_fraction);
+
+/// Grey conversion of an 8-bit image (BGR or already grey).
+cv::Mat toGrey(const cv::Mat& image);
+
+}  // namespace radslam

@@ -1,0 +1,124 @@
+#include "tracker/frontend_depth.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <vector>
+
+namespace radslam {
+namespace {
+constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+}  // namespace
+
+cv::Mat sensorDepthToGrid(const cv::Mat& depth, int cell, double min_fraction, double min_m,
+                          double max_m) {
+  CV_Assert(depth.type() == CV_32FC1 && cell >= 1 && depth.cols % cell == 0 &&
+            depth.rows % cell == 0);
+  cv::Mat out(depth.rows / cell, depth.cols / cell, CV_32FC1, cv::Scalar(0));
+  std::vector<float> values;
+  values.reserve(cell * cell);
+  const double needed = min_fraction * cell * cell;
+  for (int v = 0; v < out.rows; ++v) {
+    for (int u = 0; u < out.cols; ++u) {
+      values.clear();
+      for (int y = v * cell; y < (v + 1) * cell; ++y) {
+        const float* row = depth.ptr<float>(y);
+        for (int x = u * cell; x < (u + 1) * cell; ++x) {
+          if (row[x] >= min_m && row[x] <= max_m) values.push_back(row[x]);
+        }
+      }
+      if (values.empty() || values.size() < needed) continue;
+      const size_t mid = values.size() / 2;
+      std::nth_element(values.begin(), values.begin() + mid, values.end());
+      out.at<float>(v, u) = values[mid];
+    }
+  }
+  return out;
+}
+
+void depthPrior(const cv::Mat& grid_depth, double a, double b, double z0, cv::Mat* inv_depth,
+                cv::Mat* inv_depth_var) {
+  CV_Assert(grid_depth.type() == CV_32FC1);
+  inv_depth->create(grid_depth.size(), CV_32FC1);
+  inv_depth_var->create(grid_depth.size(), CV_32FC1);
+  for (int v = 0; v < grid_depth.rows; ++v) {
+    const float* z = grid_depth.ptr<float>(v);
+    float* d = inv_depth->ptr<float>(v);
+    float* var = inv_depth_var->ptr<float>(v);
+    for (int u = 0; u < grid_depth.cols; ++u) {
+      if (!(z[u] > 0) || !std::isfinite(z[u])) {
+        d[u] = kNaN;
+        var[u] = 0;
+        continue;
+      }
+      const double sigma_z = a + b * (z[u] - z0) * (z[u] - z0);
+      d[u] = static_cast<float>(1.0 / z[u]);
+      var[u] = static_cast<float>(sigma_z * sigma_z / std::pow(static_cast<double>(z[u]), 4));
+    }
+  }
+}
+
+cv::Mat stereoInverseDepth(const cv::Mat& target, const cv::Mat& weight, double fx_grid,
+                           double baseline_m, double min_disparity_px) {
+  CV_Assert(target.type() == CV_32FC2 && weight.type() == CV_32FC2 &&
+            target.size() == weight.size() && fx_grid > 0 && baseline_m > 0);
+  cv::Mat out(target.size(), CV_32FC1, cv::Scalar(kNaN));
+  for (int v = 0; v < target.rows; ++v) {
+    const cv::Vec2f* t = target.ptr<cv::Vec2f>(v);
+    const cv::Vec2f* w = weight.ptr<cv::Vec2f>(v);
+    float* d = out.ptr<float>(v);
+    for (int u = 0; u < target.cols; ++u) {
+      if (!(w[u][0] > 0)) continue;
+      const double disparity = u - t[u][0];
+      if (disparity >= min_disparity_px)
+        d[u] = static_cast<float>(disparity / (fx_grid * baseline_m));
+    }
+  }
+  return out;
+}
+
+cv::Mat splatInverseDepth(const cv::Mat& inv_depth_a, const cv::Mat& target, const cv::Mat& weight,
+                          const SE3& T_b_a, const CameraModel& grid) {
+  CV_Assert(inv_depth_a.type() == CV_32FC1 && target.type() == CV_32FC2 &&
+            weight.type() == CV_32FC2 && inv_depth_a.size() == target.size() &&
+            target.size() == weight.size());
+  cv::Mat out(inv_depth_a.size(), CV_32FC1, cv::Scalar(kNaN));
+  const Mat3 R = T_b_a.rotation();
+  const Vec3 t = T_b_a.translation();
+  for (int v = 0; v < target.rows; ++v) {
+    const float* da = inv_depth_a.ptr<float>(v);
+    const cv::Vec2f* tg = target.ptr<cv::Vec2f>(v);
+    const cv::Vec2f* w = weight.ptr<cv::Vec2f>(v);
+    const double y = (v - grid.cy) / grid.fy;
+    for (int u = 0; u < target.cols; ++u) {
+      if (!(w[u][0] > 0) || !(da[u] > 0) || !std::isfinite(da[u])) continue;
+      const int ub = static_cast<int>(std::lround(tg[u][0]));
+      const int vb = static_cast<int>(std::lround(tg[u][1]));
+      if (ub < 0 || vb < 0 || ub >= out.cols || vb >= out.rows) continue;
+      // Homogeneous point R (x, y, 1) + t d: its z is z_b / z_a (see dense_ba_kernel.h).
+      const double x = (u - grid.cx) / grid.fx;
+      const double ratio = R(2, 0) * x + R(2, 1) * y + R(2, 2) + t(2) * da[u];
+      if (!(ratio > 0.1)) continue;
+      const float db = static_cast<float>(da[u] / ratio);
+      float& o = out.at<float>(vb, ub);
+      if (!(o >= db)) o = db;  // NaN or farther: the nearer surface occludes
+    }
+  }
+  return out;
+}
+
+void fillInverseDepth(cv::Mat* inv_depth, const cv::Mat& preferred, double fallback) {
+  CV_Assert(inv_depth->type() == CV_32FC1);
+  CV_Assert(preferred.empty() ||
+            (preferred.type() == CV_32FC1 && preferred.size() == inv_depth->size()));
+  for (int v = 0; v < inv_depth->rows; ++v) {
+    float* d = inv_depth->ptr<float>(v);
+    const float* p = preferred.empty() ? nullptr : preferred.ptr<float>(v);
+    for (int u = 0; u < inv_depth->cols; ++u) {
+      if (std::isfinite(d[u]) && d[u] > 0) continue;
+      d[u] = (p && std::isfinite(p[u]) && p[u] > 0) ? p[u] : static_cast<float>(fallback);
+    }
+  }
+}
+
+}  // namespace radslam

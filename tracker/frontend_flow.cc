@@ -1,0 +1,231 @@
+#include "tracker/frontend_flow.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+#include <vector>
+
+#include <opencv2/imgproc.hpp>
+
+namespace radslam {
+namespace {
+
+// Confidence statistics use every kSampleStride-th pixel of every kSampleStride-th row.
+constexpr int kSampleStride = 2;
+
+int presetOf(const std::string& name) {
+  if (name == "ultrafast") return cv::DISOpticalFlow::PRESET_ULTRAFAST;
+  if (name == "fast") return cv::DISOpticalFlow::PRESET_FAST;
+  if (name == "medium") return cv::DISOpticalFlow::PRESET_MEDIUM;
+  throw std::invalid_argument("flow preset '" + name + "' is unknown (ultrafast, fast, medium)");
+}
+
+}  // namespace
+
+DenseFlow::DenseFlow(const FlowOptions& options) : options_(options) {
+  dis_ = cv::DISOpticalFlow::create(presetOf(options.preset));
+  if (options.finest_scale < 0 || options.finest_scale > 6) {
+    throw std::invalid_argument("flow finest_scale must be in [0, 6], got " +
+                                std::to_string(options.finest_scale));
+  }
+  if (options.variational_iterations < 0 || options.patch_size < 4 || options.patch_stride < 1 ||
+      options.patch_stride > options.patch_size) {
+    throw std::invalid_argument(
+        "flow options: need variational_iterations >= 0, patch_size >= 4, 1 <= patch_stride <= "
+        "patch_size");
+  }
+  dis_->setFinestScale(options.finest_scale);
+  dis_->setVariationalRefinementIterations(options.variational_iterations);
+  dis_->setPatchSize(options.patch_size);
+  dis_->setPatchStride(options.patch_stride);
+  dis_->setUseSpatialPropagation(options.spatial_propagation);
+}
+
+cv::Mat DenseFlow::compute(const cv::Mat& grey_a, const cv::Mat& grey_b, const cv::Mat& init) {
+  CV_Assert(grey_a.type() == CV_8UC1 && grey_b.type() == CV_8UC1 && grey_a.size() == grey_b.size());
+  // DIS starts from the given flow when it has a's size and type, from zero otherwise.
+  cv::Mat flow;
+  if (!init.empty()) {
+    CV_Assert(init.type() == CV_32FC2 && init.size() == grey_a.size());
+    flow = init.clone();
+  }
+  const cv::Mat a = grey_a.isContinuous() ? grey_a : grey_a.clone();
+  const cv::Mat b = grey_b.isContinuous() ? grey_b : grey_b.clone();
+  dis_->calc(a, b, flow);
+  return flow;
+}
+
+cv::Mat predictedFlow(const cv::Mat& grid_targets, const GridGeometry& geometry) {
+  if (grid_targets.empty()) return {};
+  CV_Assert(grid_targets.type() == CV_32FC2 && grid_targets.size() == geometry.gridSize());
+  const float cell = static_cast<float>(geometry.cell);
+  cv::Mat flow(grid_targets.size(), CV_32FC2);
+  std::vector<float> fu, fv;
+  for (int v = 0; v < flow.rows; ++v) {
+    const cv::Vec2f* t = grid_targets.ptr<cv::Vec2f>(v);
+    cv::Vec2f* f = flow.ptr<cv::Vec2f>(v);
+    for (int u = 0; u < flow.cols; ++u) {
+      f[u] = cv::Vec2f(cell * (t[u][0] - u), cell * (t[u][1] - v));
+      if (std::isfinite(f[u][0]) && std::isfinite(f[u][1])) {
+        fu.push_back(f[u][0]);
+        fv.push_back(f[u][1]);
+      }
+    }
+  }
+  cv::Vec2f fill(0, 0);
+  if (!fu.empty()) {
+    const size_t mid = fu.size() / 2;
+    std::nth_element(fu.begin(), fu.begin() + mid, fu.end());
+    std::nth_element(fv.begin(), fv.begin() + mid, fv.end());
+    fill = cv::Vec2f(fu[mid], fv[mid]);
+  }
+  for (int v = 0; v < flow.rows; ++v) {
+    cv::Vec2f* f = flow.ptr<cv::Vec2f>(v);
+    for (int u = 0; u < flow.cols; ++u) {
+      if (!std::isfinite(f[u][0]) || !std::isfinite(f[u][1])) f[u] = fill;
+    }
+  }
+  cv::Mat out;
+  cv::resize(flow, out, geometry.workingSize(), 0, 0, cv::INTER_LINEAR);
+  return out;
+}
+
+cv::Mat cellStructureTensor(const cv::Mat& grey, int cell) {
+  CV_Assert(grey.type() == CV_8UC1 && grey.cols % cell == 0 && grey.rows % cell == 0);
+  cv::Mat gx, gy;
+  // The 3x3 Sobel sums 8 x the central difference: scale 1/8 gives grey levels per pixel.
+  cv::Sobel(grey, gx, CV_32F, 1, 0, 3, 0.125, 0, cv::BORDER_REPLICATE);
+  cv::Sobel(grey, gy, CV_32F, 0, 1, 3, 0.125, 0, cv::BORDER_REPLICATE);
+  // Cell means of the three products, then one small merge (cheaper than a 3-channel resize).
+  const cv::Size grid(grey.cols / cell, grey.rows / cell);
+  cv::Mat xx, xy, yy, out;
+  cv::resize(gx.mul(gx), xx, grid, 0, 0, cv::INTER_AREA);
+  cv::resize(gx.mul(gy), xy, grid, 0, 0, cv::INTER_AREA);
+  cv::resize(gy.mul(gy), yy, grid, 0, 0, cv::INTER_AREA);
+  cv::merge(std::vector<cv::Mat>{xx, xy, yy}, out);
+  return out;
+}
+
+Correspondences flowToCorrespondences(const cv::Mat& grey_a, const cv::Mat& grey_b,
+                                      const cv::Mat& flow_ab, const cv::Mat& flow_ba,
+                                      const GridGeometry& geometry, const FlowOptions& options) {
+  return flowToCorrespondences(grey_a, grey_b, flow_ab, flow_ba,
+                               cellStructureTensor(grey_a, geometry.cell), geometry, options);
+}
+
+Correspondences flowToCorrespondences(const cv::Mat& grey_a, const cv::Mat& grey_b,
+                                      const cv::Mat& flow_ab, const cv::Mat& flow_ba,
+                                      const cv::Mat& structure_a, const GridGeometry& geometry,
+                                      const FlowOptions& options) {
+  const cv::Size work = geometry.workingSize();
+  const cv::Size grid = geometry.gridSize();
+  const int c = geometry.cell;
+  CV_Assert(grey_a.type() == CV_8UC1 && grey_b.type() == CV_8UC1 && grey_a.size() == work &&
+            grey_b.size() == work);
+  CV_Assert(flow_ab.type() == CV_32FC2 && flow_ab.size() == work);
+  CV_Assert(flow_ba.empty() || (flow_ba.type() == CV_32FC2 && flow_ba.size() == work));
+  CV_Assert(structure_a.type() == CV_32FC3 && structure_a.size() == grid);
+
+  // Per-cell statistics from every other pixel of every other row (16 of a cell's 64): the
+  // photometric residual after warping b onto a, the forward-backward error and the pixels
+  // whose match lands inside b. The mean flow uses every pixel.
+  const int n_cells = grid.area();
+  std::vector<float> n_in(n_cells, 0), n_all(n_cells, 0), sum_r(n_cells, 0), sum_r2(n_cells, 0),
+      sum_fb2(n_cells, 0);
+  const float x_hi = work.width - 0.5f, y_hi = work.height - 0.5f;
+  const int wmax = work.width - 1, hmax = work.height - 1;
+  const bool with_fb = !flow_ba.empty();
+  for (int y = 0; y < work.height; y += kSampleStride) {
+    const cv::Vec2f* f = flow_ab.ptr<cv::Vec2f>(y);
+    const uint8_t* ia = grey_a.ptr<uint8_t>(y);
+    const int row = (y / c) * grid.width;
+    for (int x = 0; x < work.width; x += kSampleStride) {
+      const int k = row + x / c;
+      n_all[k] += 1;
+      const float xb = x + f[x][0], yb = y + f[x][1];
+      if (!(xb >= -0.5f && yb >= -0.5f && xb <= x_hi && yb <= y_hi)) continue;  // NaN: out
+      // Bilinear sample at (xb, yb), clamped to the border.
+      const float xc = std::min(std::max(xb, 0.0f), static_cast<float>(wmax));
+      const float yc = std::min(std::max(yb, 0.0f), static_cast<float>(hmax));
+      const int x0 = std::min(static_cast<int>(xc), wmax - 1);
+      const int y0 = std::min(static_cast<int>(yc), hmax - 1);
+      const float ax = xc - x0, ay = yc - y0;
+      const float w00 = (1 - ax) * (1 - ay), w01 = ax * (1 - ay), w10 = (1 - ax) * ay,
+                  w11 = ax * ay;
+      const uint8_t* b0 = grey_b.ptr<uint8_t>(y0) + x0;
+      const uint8_t* b1 = grey_b.ptr<uint8_t>(y0 + 1) + x0;
+      const float r = ia[x] - (w00 * b0[0] + w01 * b0[1] + w10 * b1[0] + w11 * b1[1]);
+      n_in[k] += 1;
+      sum_r[k] += r;
+      sum_r2[k] += r * r;
+      if (with_fb) {
+        const cv::Vec2f* f0 = flow_ba.ptr<cv::Vec2f>(y0) + x0;
+        const cv::Vec2f* f1 = flow_ba.ptr<cv::Vec2f>(y0 + 1) + x0;
+        const float eu =
+            f[x][0] + w00 * f0[0][0] + w01 * f0[1][0] + w10 * f1[0][0] + w11 * f1[1][0];
+        const float ev =
+            f[x][1] + w00 * f0[0][1] + w01 * f0[1][1] + w10 * f1[0][1] + w11 * f1[1][1];
+        sum_fb2[k] += eu * eu + ev * ev;
+      }
+    }
+  }
+  cv::Mat m_flow;  // INTER_AREA averages exactly the cell's pixels
+  cv::resize(flow_ab, m_flow, grid, 0, 0, cv::INTER_AREA);
+
+  Correspondences out;
+  out.target.create(grid, CV_32FC2);
+  out.weight.create(grid, CV_32FC2);
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  const double sigma0_sq = options.sigma0_px * options.sigma0_px;
+  std::vector<float> fb_valid;
+  int valid = 0;
+  for (int v = 0; v < grid.height; ++v) {
+    cv::Vec2f* t = out.target.ptr<cv::Vec2f>(v);
+    cv::Vec2f* w = out.weight.ptr<cv::Vec2f>(v);
+    const cv::Vec2f* mf = m_flow.ptr<cv::Vec2f>(v);
+    for (int u = 0; u < grid.width; ++u) {
+      w[u] = cv::Vec2f(0, 0);
+      const int k = v * grid.width + u;
+      const double frac_in = n_all[k] > 0 ? n_in[k] / n_all[k] : 0;
+      const double tu = u + mf[u][0] / c;
+      const double tv = v + mf[u][1] / c;
+      // A cell counts only when its mean flow is finite and most of its pixels land inside b.
+      if (!std::isfinite(tu) || !std::isfinite(tv)) {
+        t[u] = cv::Vec2f(nan, nan);
+        continue;
+      }
+      t[u] = cv::Vec2f(static_cast<float>(tu), static_cast<float>(tv));
+      if (frac_in < 0.5 || tu < -0.5 || tv < -0.5 || tu > grid.width - 0.5 ||
+          tv > grid.height - 0.5) {
+        continue;
+      }
+      const double mean_r = sum_r[k] / n_in[k];
+      const double e_ph = std::sqrt(std::max(0.0, sum_r2[k] / n_in[k] - mean_r * mean_r));
+      const double e_fb = std::sqrt(std::max(0.0, static_cast<double>(sum_fb2[k]) / n_in[k])) / c;
+      if (e_fb > options.fb_max_px || e_ph > options.photo_max) continue;
+      // Aperture: the flow covariance of a Lucas-Kanade window is proportional to J^-1; its
+      // diagonal (J regularised by grad_floor I) is each component's own uncertainty, so flow
+      // along a stripe gets no weight while flow across it keeps its full weight.
+      const cv::Vec3f J = structure_a.at<cv::Vec3f>(v, u);
+      const double jxx = J[0] + options.grad_floor, jxy = J[1], jyy = J[2] + options.grad_floor;
+      const double det = jxx * jyy - jxy * jxy;
+      const double ph = e_ph / options.photo_scale;
+      const double common = sigma0_sq + options.fb_gain * e_fb * e_fb + ph * ph;
+      const double var_u = common + options.grad_gain * jyy / det;
+      const double var_v = common + options.grad_gain * jxx / det;
+      w[u] = cv::Vec2f(static_cast<float>(1.0 / var_u), static_cast<float>(1.0 / var_v));
+      fb_valid.push_back(static_cast<float>(e_fb));
+      ++valid;
+    }
+  }
+  out.valid_fraction = n_cells > 0 ? static_cast<double>(valid) / n_cells : 0;
+  if (!fb_valid.empty()) {
+    const size_t mid = fb_valid.size() / 2;
+    std::nth_element(fb_valid.begin(), fb_valid.begin() + mid, fb_valid.end());
+    out.median_fb_px = fb_valid[mid];
+  }
+  return out;
+}
+
+}  // namespace radslam

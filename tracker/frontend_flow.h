@@ -1,0 +1,112 @@
+// Dense correspondences for dense BA: OpenCV DIS optical flow at working resolution, warm-started
+// from the flow the current estimate predicts, reduced to the BA grid with a per-pixel
+// confidence (the edge weight). DROID-SLAM's ConvGRU replaced by classical flow (DESIGN.md 3).
+//
+/// Confidence model. For grid pixel p (a c x c cell of working pixels, c = 8) the flow target
+/// is the mean flow over the cell. The variance of its component k (u or v), in grid px^2, is
+///
+///   sigma_k^2 = sigma0^2                  noise floor of a well-textured, consistent cell
+///             + fb_gain e_fb^2            e_fb: RMS over the cell of the forward-backward error
+///                                         |f_ab(x) + f_ba(x + f_ab(x))|, grid px
+///             + (e_ph / photo_scale)^2    e_ph: RMS over the cell of the photometric residual
+///                                         I_a(x) - I_b(x + f_ab(x)) minus its cell mean (robust
+///                                         to exposure changes), grey levels
+///             + grad_gain [J^-1]_kk       J = mean(g g^T) + grad_floor I, the cell's structure
+///                                         tensor, (grey/working px)^2: Lucas-Kanade's flow
+///                                         covariance is proportional to J^-1, so flow along a
+///                                         stripe (aperture problem) gets no weight and flow
+///                                         across it keeps its weight
+///
+/// The RMS terms use every other pixel of every other row of the cell (16 of 64 for c = 8: a
+/// quarter of the cost and plenty for a cell statistic); the target uses all pixels. The
+/// weight is (1/sigma_u^2, 1/sigma_v^2); it is 0 (a failure) when e_fb > fb_max_px,
+/// e_ph > photo_max, fewer than half of the cell's pixels land inside b, the target leaves b
+/// or the flow is not finite. The terms add as independent error sources; the constants and
+/// their calibration are documented at FlowOptions.
+#pragma once
+
+#include <string>
+
+#include <opencv2/core.hpp>
+#include <opencv2/video/tracking.hpp>
+
+#include "tracker/frontend.h"
+
+namespace radslam {
+
+struct FlowOptions {
+  /// DIS preset: "ultrafast", "fast" or "medium".
+  std::string preset = "fast";
+  /// Finest pyramid level DIS estimates (0 = working resolution); the BA grid is 1/8 of it, so
+  /// level 2 (1/4) is already finer than the grid.
+  int finest_scale = 2;
+  /// Variational refinement iterations per level (the presets use 5). None are needed once the
+  /// flow is averaged over 8x8 cells: on the synthetic room the grid error is the same with 0
+  /// or 1, and 0 saves 40% of the flow time.
+  int variational_iterations = 0;
+  int patch_size = 8;    // px at each level (the preset's default is 8)
+  int patch_stride = 4;  // px (preset default 4 for fast, 3 for medium)
+  bool spatial_propagation = true;
+  // Confidence constants (see the model above), calibrated on the synthetic room (image noise
+  // 2 grey levels, frame gaps 2 to 6, flow warm-started 0.3 px off the truth): per component,
+  // the mean squared error is about 0.003 + 1.0 e_fb^2 over the deciles of e_fb, and grows
+  // with [J^-1]_kk about 0.2 px^2 per unit over its informative range; the photometric
+  // residual barely predicts the error there (it matters for occlusions and specularities of
+  // real images), so its scale is large and it acts mostly through photo_max.
+  double sigma0_px = 0.05;     // grid px
+  double fb_gain = 1.0;        // dimensionless
+  double fb_max_px = 0.75;     // grid px
+  double photo_scale = 100.0;  // grey levels per grid px of standard deviation
+  double photo_max = 40.0;     // grey levels
+  double grad_gain = 0.2;      // (grey levels / working px)^2 x grid px^2
+  double grad_floor = 1.0;     // (grey levels / working px)^2, regularises J
+};
+
+/// Flow from one image to another with DIS (one instance reused: its buffers are kept).
+class DenseFlow {
+ public:
+  /// Throws std::invalid_argument on an unknown preset or out-of-range option.
+  explicit DenseFlow(const FlowOptions& options);
+  const FlowOptions& options() const { return options_; }
+
+  /// Flow a -> b (CV_32FC2, a's size, working px: x in a matches x + flow(x) in b). `init`,
+  /// when not empty (CV_32FC2, a's size), is DIS's initial flow (warm start).
+  cv::Mat compute(const cv::Mat& grey_a, const cv::Mat& grey_b, const cv::Mat& init = {});
+
+ private:
+  FlowOptions options_;
+  cv::Ptr<cv::DISOpticalFlow> dis_;
+};
+
+/// Working-resolution flow predicted by grid targets (CV_32FC2 grid, location in b's grid;
+/// NaN where there is no prediction): flow = cell * (target - p), non-finite entries replaced
+/// by the median of the finite ones (0 if none), upsampled bilinearly (pixel-centre convention
+/// of frontend.h). Returns an empty matrix when targets is empty.
+cv::Mat predictedFlow(const cv::Mat& grid_targets, const GridGeometry& geometry);
+
+/// Per-edge result: what DenseBaEdge needs, plus figures.
+struct Correspondences {
+  cv::Mat target;             // CV_32FC2 grid size: location in b's grid (grid px)
+  cv::Mat weight;             // CV_32FC2 grid size: inverse variance (1/grid px^2) of u and v
+  double valid_fraction = 0;  // pixels with weight > 0
+  double median_fb_px = 0;    // median over valid cells of e_fb (grid px)
+};
+
+/// Grid correspondences a -> b from the forward flow (a -> b) and, when not empty, the
+/// backward flow (b -> a) for the forward-backward term (without it e_fb = 0). Images are
+/// CV_8UC1 working size.
+Correspondences flowToCorrespondences(const cv::Mat& grey_a, const cv::Mat& grey_b,
+                                      const cv::Mat& flow_ab, const cv::Mat& flow_ba,
+                                      const GridGeometry& geometry, const FlowOptions& options);
+
+/// Structure tensor J = mean(g g^T) of each grid cell, (grey/working px)^2, as CV_32FC3
+/// (Jxx, Jxy, Jyy) of grid size. Depends on the image only (cache it per keyframe).
+cv::Mat cellStructureTensor(const cv::Mat& grey, int cell);
+
+/// As flowToCorrespondences with the structure tensor of a precomputed.
+Correspondences flowToCorrespondences(const cv::Mat& grey_a, const cv::Mat& grey_b,
+                                      const cv::Mat& flow_ab, const cv::Mat& flow_ba,
+                                      const cv::Mat& structure_a, const GridGeometry& geometry,
+                                      const FlowOptions& options);
+
+}  // namespace radslam

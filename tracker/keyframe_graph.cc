@@ -1,0 +1,199 @@
+#include "tracker/keyframe_graph.h"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+namespace radslam {
+
+double medianPositive(const cv::Mat& image, double fallback) {
+  CV_Assert(image.empty() || image.type() == CV_32FC1);
+  std::vector<float> values;
+  values.reserve(image.total());
+  for (int v = 0; v < image.rows; ++v) {
+    const float* p = image.ptr<float>(v);
+    for (int u = 0; u < image.cols; ++u) {
+      if (std::isfinite(p[u]) && p[u] > 0) values.push_back(p[u]);
+    }
+  }
+  if (values.empty()) return fallback;
+  const size_t mid = values.size() / 2;
+  std::nth_element(values.begin(), values.begin() + mid, values.end());
+  return values[mid];
+}
+
+KeyframeGraph::KeyframeGraph(int window_size) : window_size_(window_size) {
+  if (window_size < 2) {
+    throw std::invalid_argument("keyframe window size must be >= 2, got " +
+                                std::to_string(window_size));
+  }
+}
+
+KeyframeData& KeyframeGraph::add(KeyframeData keyframe) {
+  keyframe.id = size();
+  keyframe.in_window = true;
+  window_.push_back(keyframe.id);
+  keyframes_.push_back(std::move(keyframe));
+  return keyframes_.back();
+}
+
+std::vector<int> KeyframeGraph::windowIds() const { return window_; }
+
+std::vector<int> KeyframeGraph::leaving() const {
+  const int excess = static_cast<int>(window_.size()) - window_size_;
+  return excess > 0 ? std::vector<int>(window_.begin(), window_.begin() + excess)
+                    : std::vector<int>();
+}
+
+std::vector<int> KeyframeGraph::slideWindow() {
+  std::vector<int> left;
+  while (static_cast<int>(window_.size()) > window_size_) {
+    left.push_back(window_.front());
+    window_.erase(window_.begin());
+  }
+  for (int id : left) {
+    KeyframeData& kf = keyframes_[id];
+    kf.in_window = false;
+    // Pose, covariance, inverse depth stay; the images are not needed any more.
+    kf.color.release();
+    kf.grey.release();
+    kf.right_grey.release();
+    kf.structure.release();
+    kf.sensor_inv_depth.release();
+    kf.sensor_inv_depth_var.release();
+    kf.sent_inv_depth.release();
+  }
+  if (!left.empty()) {
+    auto gone = [&](int id) { return id >= 0 && !keyframes_[id].in_window; };
+    edges_.erase(std::remove_if(edges_.begin(), edges_.end(),
+                                [&](const GraphEdge& e) { return gone(e.i) || gone(e.j); }),
+                 edges_.end());
+  }
+  return left;
+}
+
+void KeyframeGraph::restartWindowAtLast() {
+  if (window_.size() <= 1) return;
+  const int keep = window_.back();
+  const int saved = window_size_;
+  window_size_ = 1;
+  slideWindow();
+  window_size_ = saved;
+  window_ = {keep};
+}
+
+void KeyframeGraph::setEdge(GraphEdge edge) {
+  for (GraphEdge& e : edges_) {
+    const bool same = e.i == edge.i &&
+                      (edge.T_i_other ? e.T_i_other.has_value() : (!e.T_i_other && e.j == edge.j));
+    if (same) {
+      e = std::move(edge);
+      return;
+    }
+  }
+  edges_.push_back(std::move(edge));
+}
+
+double KeyframeGraph::overlap(int a, int b, const CameraModel& grid, double min_depth_ratio) const {
+  const KeyframeData& ka = keyframes_.at(a);
+  const KeyframeData& kb = keyframes_.at(b);
+  const cv::Mat p = reprojectKeyframe(grid, ka.ba, kb.ba.T_world_cam, min_depth_ratio);
+  int inside = 0;
+  for (int v = 0; v < p.rows; ++v) {
+    const cv::Vec2f* q = p.ptr<cv::Vec2f>(v);
+    for (int u = 0; u < p.cols; ++u) {
+      inside += q[u][0] >= -0.5f && q[u][1] >= -0.5f && q[u][0] <= grid.width - 0.5f &&
+                q[u][1] <= grid.height - 0.5f;  // NaN compares false
+    }
+  }
+  return p.total() > 0 ? static_cast<double>(inside) / p.total() : 0;
+}
+
+std::vector<int> KeyframeGraph::edgePartners(int id, const CameraModel& grid, double min_overlap,
+                                             int max_partners, double min_depth_ratio) const {
+  std::vector<int> partners;
+  const auto it = std::find(window_.begin(), window_.end(), id);
+  if (it == window_.end() || it == window_.begin() || max_partners < 1) return partners;
+  partners.push_back(*(it - 1));
+  for (auto p = it - 1; p != window_.begin() && static_cast<int>(partners.size()) < max_partners;) {
+    --p;
+    if (overlap(id, *p, grid, min_depth_ratio) > min_overlap) partners.push_back(*p);
+  }
+  return partners;
+}
+
+DenseBaProblem KeyframeGraph::buildProblem(const CameraModel& grid, std::vector<int>* ids) const {
+  DenseBaProblem problem;
+  problem.camera = grid;
+  ids->assign(window_.begin(), window_.end());
+  std::vector<int> index(keyframes_.size(), -1);
+  for (size_t n = 0; n < window_.size(); ++n) {
+    index[window_[n]] = static_cast<int>(n);
+    problem.keyframes.push_back(keyframes_[window_[n]].ba);
+  }
+  for (const GraphEdge& e : edges_) {
+    const int i = index[e.i];
+    const int j = e.T_i_other ? 0 : (e.j >= 0 ? index[e.j] : -1);
+    if (i < 0 || j < 0) continue;
+    DenseBaEdge be;
+    be.i = i;
+    be.j = e.T_i_other ? i : j;
+    be.target = e.target;
+    be.weight = e.weight;
+    be.T_i_other = e.T_i_other;
+    problem.edges.push_back(std::move(be));
+  }
+  return problem;
+}
+
+void KeyframeGraph::writeBack(const DenseBaProblem& problem, const std::vector<int>& ids) {
+  for (size_t n = 0; n < ids.size(); ++n) {
+    KeyframeData& kf = keyframes_.at(ids[n]);
+    kf.ba.T_world_cam = problem.keyframes[n].T_world_cam;
+    kf.ba.inv_depth = problem.keyframes[n].inv_depth;
+  }
+}
+
+void KeyframeGraph::setMarginals(const DenseBaMarginals& marginals, const std::vector<int>& ids) {
+  if (!marginals.ok) return;
+  for (size_t n = 0; n < ids.size(); ++n) {
+    KeyframeData& kf = keyframes_.at(ids[n]);
+    if (n < marginals.pose_covariance.size()) kf.covariance = marginals.pose_covariance[n];
+    if (n < marginals.inv_depth_var.size()) kf.inv_depth_var = marginals.inv_depth_var[n];
+  }
+}
+
+bool KeyframeGraph::changed(int id, const ResendTolerance& tol) const {
+  const KeyframeData& kf = keyframes_.at(id);
+  if (kf.version < 0 || kf.sent_inv_depth.empty()) return true;
+  const SE3 delta = kf.sent_pose.inverse() * kf.ba.T_world_cam;
+  const double depth_scale = 1.0 / medianPositive(kf.ba.inv_depth, 1.0);
+  if (delta.so3().log().norm() > tol.rotation_rad) return true;
+  if (delta.translation().norm() / depth_scale > tol.translation_rel) return true;
+  cv::Mat rel;
+  cv::absdiff(kf.ba.inv_depth, kf.sent_inv_depth, rel);
+  cv::divide(rel, cv::max(kf.sent_inv_depth, 1e-9), rel);
+  return cv::mean(rel)[0] > tol.inv_depth_rel;
+}
+
+std::vector<int> KeyframeGraph::toSend(const ResendTolerance& tol, bool now) const {
+  std::vector<int> out;
+  for (int id : window_) {
+    const KeyframeData& kf = keyframes_[id];
+    const bool due = now || kf.version < 0 || size() - kf.sent_at >= tol.min_keyframes_between;
+    if (due && changed(id, tol)) out.push_back(id);
+  }
+  return out;
+}
+
+int KeyframeGraph::markSent(int id) {
+  KeyframeData& kf = keyframes_.at(id);
+  kf.version += 1;
+  kf.sent_at = size();
+  kf.sent_pose = kf.ba.T_world_cam;
+  kf.sent_inv_depth = kf.ba.inv_depth.clone();
+  return kf.version;
+}
+
+}  // namespace radslam

@@ -1,0 +1,661 @@
+#include "tracker/tracker.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+#include <opencv2/core/utility.hpp>
+
+#include "tracker/frontend_depth.h"
+#include "tracker/motion_only.h"
+
+namespace radslam {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double msSince(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+/// A frame's pose, kept relative to its reference keyframe so that it follows BA.
+struct FrameRecord {
+  Header header;
+  int64_t frame_index = 0;
+  int ref_kf = 0;
+  SE3 T_kf_frame;               // identity for keyframes
+  Mat6 cov_rel = Mat6::Zero();  // covariance of the frame pose given the keyframe's
+  TrackingState state = TrackingState::kTracking;
+  bool is_keyframe = false;
+};
+
+/// Covariance of T_world_frame = T_world_kf T_kf_frame from the keyframe's covariance and the
+/// relative one (independent): a right perturbation of T_world_kf moves the frame by
+/// Ad(T_frame_kf) delta.
+Mat6 composeCovariance(const Mat6& cov_kf, const SE3& T_kf_frame, const Mat6& cov_rel) {
+  const Mat6 Ad = T_kf_frame.inverse().adjoint();
+  return Ad * cov_kf * Ad.transpose() + cov_rel;
+}
+
+void check(bool ok, const std::string& what) {
+  if (!ok) throw std::invalid_argument("tracker parameter " + what);
+}
+
+}  // namespace
+
+TrackerMode parseTrackerMode(const std::string& name) {
+  if (name == "mono") return TrackerMode::kMono;
+  if (name == "rgbd") return TrackerMode::kRgbd;
+  if (name == "stereo") return TrackerMode::kStereo;
+  throw std::invalid_argument("tracker mode '" + name + "' is unknown (mono, rgbd, stereo)");
+}
+
+const char* trackerModeName(TrackerMode mode) {
+  switch (mode) {
+    case TrackerMode::kMono:
+      return "mono";
+    case TrackerMode::kRgbd:
+      return "rgbd";
+    case TrackerMode::kStereo:
+      return "stereo";
+  }
+  return "?";
+}
+
+void validateTrackerParams(const TrackerParams& p) {
+  parseTrackerMode(p.mode);
+  check(p.opencv_threads >= 0, "opencv_threads must be >= 0");
+  check(p.working_width >= 0, "working_width must be >= 0 (0 = input width)");
+  check(p.grid_cell >= 2 && p.grid_cell <= 32, "grid_cell must be in [2, 32]");
+  check(p.flow_preset == "ultrafast" || p.flow_preset == "fast" || p.flow_preset == "medium",
+        "flow_preset must be ultrafast, fast or medium");
+  check(p.flow_finest_scale >= 0 && p.flow_finest_scale <= 6,
+        "flow_finest_scale must be in [0, 6]");
+  check(p.flow_variational_iterations >= 0, "flow_variational_iterations must be >= 0");
+  check(p.flow_patch_size >= 4 && p.flow_patch_stride >= 1 &&
+            p.flow_patch_stride <= p.flow_patch_size,
+        "flow_patch_size >= 4 and 1 <= flow_patch_stride <= flow_patch_size");
+  check(p.conf_sigma0_px > 0, "conf_sigma0_px must be > 0");
+  check(p.conf_grad_floor > 0, "conf_grad_floor must be > 0");
+  check(p.conf_fb_gain >= 0 && p.conf_grad_gain >= 0, "conf_fb_gain, conf_grad_gain must be >= 0");
+  check(p.conf_fb_max_px > 0 && p.conf_photo_max > 0 && p.conf_photo_scale > 0,
+        "conf_fb_max_px, conf_photo_max, conf_photo_scale must be > 0");
+  check(p.keyframe_flow_px > 0, "keyframe_flow_px must be > 0");
+  check(p.keyframe_min_valid >= 0 && p.keyframe_min_valid < 1, "keyframe_min_valid in [0, 1)");
+  check(p.window_size >= 2, "window_size must be >= 2");
+  check(p.max_edge_partners >= 1, "max_edge_partners must be >= 1");
+  check(p.min_edge_overlap >= 0 && p.min_edge_overlap <= 1, "min_edge_overlap in [0, 1]");
+  check(p.flow_ba_rounds >= 1, "flow_ba_rounds must be >= 1");
+  check(p.ba_iterations >= 1 && p.final_ba_iterations >= 0,
+        "ba_iterations >= 1, final_ba_iterations >= 0");
+  check(p.huber_threshold >= 0, "huber_threshold must be >= 0 (0 = none)");
+  check(p.min_depth_ratio > 0 && p.min_depth_ratio < 1, "min_depth_ratio in (0, 1)");
+  check(p.mono_gauge == "first_pose" || p.mono_gauge == "first_pose_and_scale" ||
+            p.mono_gauge == "first_two_poses",
+        "mono_gauge must be first_pose, first_pose_and_scale or first_two_poses");
+  check(p.mono_prior_mean == "fixed" || p.mono_prior_mean == "median",
+        "mono_prior_mean must be fixed or median");
+  check(p.init_inv_depth > 0, "init_inv_depth must be > 0");
+  check(p.mono_prior_rel_sigma > 0, "mono_prior_rel_sigma must be > 0");
+  check(p.depth_sigma_a > 0 && p.depth_sigma_b >= 0, "depth_sigma_a > 0, depth_sigma_b >= 0");
+  check(p.depth_min_m > 0 && p.depth_max_m > p.depth_min_m, "0 < depth_min_m < depth_max_m");
+  check(p.depth_min_cell_fraction > 0 && p.depth_min_cell_fraction <= 1,
+        "depth_min_cell_fraction in (0, 1]");
+  check(p.motion_iterations >= 1, "motion_iterations must be >= 1");
+  check(p.lost_min_valid >= 0 && p.lost_min_valid < 1, "lost_min_valid in [0, 1)");
+  check(p.lost_reinit_frames >= 1, "lost_reinit_frames must be >= 1");
+  check(p.upsample_sigma_range > 0, "upsample_sigma_range must be > 0");
+  check(p.resend_rotation_deg >= 0 && p.resend_translation_rel >= 0 && p.resend_inv_depth_rel >= 0,
+        "resend tolerances must be >= 0");
+  check(p.resend_min_keyframes >= 1, "resend_min_keyframes must be >= 1");
+}
+
+struct Tracker::Impl {
+  Impl(const TrackerParams& p, TrackerMode mode);
+
+  // Per-frame steps.
+  void initialise(const Frame& frame, const PreparedImage& image, TrackerOutput* out);
+  void track(const Frame& frame, const PreparedImage& image, TrackerOutput* out);
+  /// The flows of the frame against its reference keyframe (the last keyframe).
+  struct TrackedFlow {
+    cv::Mat forward, backward;  // keyframe -> frame, frame -> keyframe (may be empty)
+    Correspondences correspondences;
+  };
+  void makeKeyframe(const Frame& frame, const PreparedImage& image, const SE3& T_world_frame,
+                    const TrackedFlow* tracked, bool restart, TrackerOutput* out);
+
+  KeyframeData newKeyframeData(const Frame& frame, const PreparedImage& image,
+                               const SE3& T_world_cam) const;
+  SE3 predictPose(int64_t utime) const;
+  SE3 framePose(const FrameRecord& r) const {
+    return graph.keyframe(r.ref_kf).ba.T_world_cam * r.T_kf_frame;
+  }
+  Mat6 frameCovariance(const FrameRecord& r) const {
+    return composeCovariance(graph.keyframe(r.ref_kf).covariance, r.T_kf_frame, r.cov_rel);
+  }
+  PoseStamped poseMessage(const FrameRecord& r) const;
+
+  // Keyframe pairs, BA and output.
+  void measurePair(int a, int b);
+  void measureStereo(int id);
+  void setPriors();
+  bool runBa(int iterations);
+  void updateMarginals();
+  /// New keyframes and changed ones that are due (all changed ones when `now`).
+  void emitChangedKeyframes(TrackerOutput* out, bool now = false);
+  Keyframe keyframeMessage(int id);
+  TrackingState trackingState() const {
+    return mode == TrackerMode::kMono && !ba_ran ? TrackingState::kInitializing
+                                                 : TrackingState::kTracking;
+  }
+
+  TrackerParams p;
+  TrackerMode mode;
+  FlowOptions flow_options;
+  DepthUpsamplingOptions upsampling;
+  ResendTolerance tolerance;
+  DenseBaOptions ba_options;
+
+  std::unique_ptr<ImagePreparer> preparer;
+  DenseFlow flow;
+  KeyframeGraph graph;
+  DenseBundleAdjuster ba;
+  MotionOnlyAligner aligner;
+  std::vector<FrameRecord> frames;
+  double baseline_m = 0;  // stereo
+  bool ba_ran = false;
+  int lost_streak = 0;
+  TrackerStats stats;
+};
+
+Tracker::Impl::Impl(const TrackerParams& params, TrackerMode m)
+    : p(params),
+      mode(m),
+      flow_options([&] {
+        FlowOptions f;
+        f.preset = params.flow_preset;
+        f.finest_scale = params.flow_finest_scale;
+        f.variational_iterations = params.flow_variational_iterations;
+        f.patch_size = params.flow_patch_size;
+        f.patch_stride = params.flow_patch_stride;
+        f.spatial_propagation = params.flow_spatial_propagation;
+        f.sigma0_px = params.conf_sigma0_px;
+        f.fb_gain = params.conf_fb_gain;
+        f.fb_max_px = params.conf_fb_max_px;
+        f.photo_scale = params.conf_photo_scale;
+        f.photo_max = params.conf_photo_max;
+        f.grad_gain = params.conf_grad_gain;
+        f.grad_floor = params.conf_grad_floor;
+        return f;
+      }()),
+      flow(flow_options),
+      graph(params.window_size),
+      aligner([&] {
+        MotionOnlyOptions m;
+        m.max_iterations = params.motion_iterations;
+        m.huber_threshold = params.huber_threshold;
+        m.min_depth_ratio = params.min_depth_ratio;
+        return m;
+      }()) {
+  upsampling.sigma_range = p.upsample_sigma_range;
+  tolerance.rotation_rad = p.resend_rotation_deg * M_PI / 180.0;
+  tolerance.translation_rel = p.resend_translation_rel;
+  tolerance.inv_depth_rel = p.resend_inv_depth_rel;
+  tolerance.min_keyframes_between = p.resend_min_keyframes;
+  ba_options.max_iterations = p.ba_iterations;
+  ba_options.huber_threshold = p.huber_threshold;
+  ba_options.min_depth_ratio = p.min_depth_ratio;
+  ba.setOptions(ba_options);
+}
+
+Tracker::Tracker(TrackerParams params) : params_(std::move(params)) {
+  validateTrackerParams(params_);
+  mode_ = parseTrackerMode(params_.mode);
+  if (params_.opencv_threads > 0) cv::setNumThreads(params_.opencv_threads);
+  impl_ = std::make_unique<Impl>(params_, mode_);
+}
+
+Tracker::~Tracker() = default;
+
+const GridGeometry* Tracker::geometry() const {
+  return impl_->preparer ? &impl_->preparer->geometry() : nullptr;
+}
+
+const KeyframeGraph& Tracker::graph() const { return impl_->graph; }
+
+TrackerOutput Tracker::process(const Frame& frame) {
+  const auto t0 = Clock::now();
+  Impl& s = *impl_;
+  const std::string where = "frame " + std::to_string(frame.frame_index) + ": ";
+  // Everything that can reject the frame happens before any state changes.
+  validateFrame(frame);
+  if (mode_ == TrackerMode::kRgbd && frame.depth.empty()) {
+    throw std::invalid_argument(where + "RGB-D mode needs a depth image");
+  }
+  if (mode_ == TrackerMode::kStereo && frame.right.empty()) {
+    throw std::invalid_argument(where + "stereo mode needs a right image");
+  }
+  std::unique_ptr<ImagePreparer> preparer;
+  if (!s.preparer) {
+    preparer =
+        std::make_unique<ImagePreparer>(frame.camera, params_.working_width, params_.grid_cell);
+  } else if (!s.preparer->matches(frame.camera)) {
+    const CameraModel& c = s.preparer->input();
+    throw std::invalid_argument(where + "camera differs from the first frame's (" +
+                                std::to_string(c.width) + "x" + std::to_string(c.height) +
+                                " fx=" + std::to_string(c.fx) + "); one tracker, one camera");
+  }
+  const PreparedImage image = (preparer ? *preparer : *s.preparer).prepare(frame, false);
+  if (preparer) s.preparer = std::move(preparer);
+  if (mode_ == TrackerMode::kStereo && s.baseline_m == 0) s.baseline_m = frame.baseline_m;
+
+  TrackerOutput out;
+  s.stats.ba_ms = 0;
+  s.stats.flow_ms = 0;
+  if (s.graph.empty()) {
+    s.initialise(frame, image, &out);
+  } else {
+    s.track(frame, image, &out);
+  }
+  out.has_pose = true;
+  ++s.stats.frames;
+  s.stats.keyframes = s.graph.size();
+  s.stats.window_size = static_cast<int>(s.graph.windowIds().size());
+  s.stats.edges = static_cast<int>(s.graph.edges().size());
+  s.stats.frame_ms = msSince(t0);
+  out.stats = s.stats;
+  return out;
+}
+
+TrackerOutput Tracker::finish() {
+  Impl& s = *impl_;
+  TrackerOutput out;
+  s.stats.ba_ms = 0;
+  s.stats.flow_ms = 0;
+  if (!s.graph.empty()) {
+    if (params_.final_ba_iterations > 0 && s.runBa(params_.final_ba_iterations)) {
+      s.updateMarginals();
+    }
+    s.emitChangedKeyframes(&out, true);
+  }
+  for (const FrameRecord& r : s.frames) {
+    PoseStamped pose = s.poseMessage(r);
+    if (pose.state == TrackingState::kInitializing && s.ba_ran)
+      pose.state = TrackingState::kTracking;
+    out.refreshed_poses.push_back(pose);
+  }
+  out.stats = s.stats;
+  return out;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Frames
+
+PoseStamped Tracker::Impl::poseMessage(const FrameRecord& r) const {
+  PoseStamped pose;
+  pose.header = r.header;
+  pose.frame_index = r.frame_index;
+  pose.state = r.state;
+  pose.is_keyframe = r.is_keyframe;
+  pose.T_world_cam = framePose(r);
+  pose.covariance = frameCovariance(r);
+  return pose;
+}
+
+SE3 Tracker::Impl::predictPose(int64_t utime) const {
+  // Constant velocity from the last two frames' current estimates (they follow BA), scaled to
+  // the time since the last frame; no velocity after a lost frame.
+  const FrameRecord& last = frames.back();
+  const SE3 T_last = framePose(last);
+  if (frames.size() < 2 || last.state == TrackingState::kLost) return T_last;
+  const FrameRecord& before = frames[frames.size() - 2];
+  const double dt_prev = static_cast<double>(last.header.utime - before.header.utime);
+  const double dt_now = static_cast<double>(utime - last.header.utime);
+  double ratio = dt_prev > 0 && dt_now > 0 ? dt_now / dt_prev : 1.0;
+  ratio = std::clamp(ratio, 0.0, 3.0);
+  const Vec6 xi = (framePose(before).inverse() * T_last).log();
+  return T_last * SE3::exp(ratio * xi);
+}
+
+KeyframeData Tracker::Impl::newKeyframeData(const Frame& frame, const PreparedImage& image,
+                                            const SE3& T_world_cam) const {
+  const GridGeometry& g = preparer->geometry();
+  KeyframeData kf;
+  kf.frame_index = frame.frame_index;
+  kf.header = frame.header;
+  kf.color = preparer->prepareColor(frame.color);
+  kf.grey = image.grey;
+  kf.structure = cellStructureTensor(image.grey, g.cell);
+  kf.right_grey = image.right_grey;
+  kf.ba.T_world_cam = T_world_cam;
+  if (mode == TrackerMode::kRgbd) {
+    const cv::Mat z = sensorDepthToGrid(image.depth, g.cell, p.depth_min_cell_fraction,
+                                        p.depth_min_m, p.depth_max_m);
+    depthPrior(z, p.depth_sigma_a, p.depth_sigma_b, p.depth_sigma_z0, &kf.sensor_inv_depth,
+               &kf.sensor_inv_depth_var);
+  }
+  return kf;
+}
+
+void Tracker::Impl::initialise(const Frame& frame, const PreparedImage& image, TrackerOutput* out) {
+  makeKeyframe(frame, image, SE3(), nullptr, false, out);
+}
+
+void Tracker::Impl::track(const Frame& frame, const PreparedImage& image, TrackerOutput* out) {
+  const GridGeometry& g = preparer->geometry();
+  const KeyframeData& ref = graph.last();
+  const SE3 T_pred = predictPose(frame.header.utime);
+
+  const auto t_flow = Clock::now();
+  const cv::Mat predicted = reprojectKeyframe(g.grid, ref.ba, T_pred, p.min_depth_ratio);
+  const cv::Mat init = predictedFlow(predicted, g);
+  const cv::Mat forward = flow.compute(ref.grey, image.grey, init);
+  cv::Mat backward;
+  if (p.frame_backward_flow) {
+    // The frame has no depth to predict the backward flow: the negated forward prediction is
+    // close wherever the flow is smooth.
+    backward = flow.compute(image.grey, ref.grey, init.empty() ? cv::Mat() : cv::Mat(-init));
+  }
+  TrackedFlow tracked;
+  tracked.forward = forward;
+  tracked.backward = backward;
+  tracked.correspondences = flowToCorrespondences(ref.grey, image.grey, forward, backward,
+                                                  ref.structure, g, flow_options);
+  const Correspondences& c = tracked.correspondences;
+  stats.flow_ms += msSince(t_flow);
+  const FlowMotion motion = measureFlowMotion(c.target, c.weight);
+  stats.valid_fraction = c.valid_fraction;
+  stats.mean_flow_px = motion.mean_flow_px;
+
+  const MotionOnlyResult aligned =
+      aligner.align(g.grid, {ref.ba}, {MotionOnlyEdge{0, c.target, c.weight}}, T_pred);
+  const bool lost = !aligned.ok || c.valid_fraction < p.lost_min_valid;
+
+  if (lost) {
+    ++lost_streak;
+    ++stats.lost_frames;
+    if (lost_streak >= p.lost_reinit_frames) {
+      // Tracking has not come back: start a new window at the predicted pose.
+      lost_streak = 0;
+      makeKeyframe(frame, image, T_pred, nullptr, true, out);
+      return;
+    }
+    FrameRecord r;
+    r.header = frame.header;
+    r.frame_index = frame.frame_index;
+    r.ref_kf = ref.id;
+    r.T_kf_frame = ref.ba.T_world_cam.inverse() * T_pred;
+    r.state = TrackingState::kLost;
+    frames.push_back(r);
+    out->pose = poseMessage(r);
+    out->pose.covariance = Mat6::Identity() * 1e6;  // no information
+    return;
+  }
+  lost_streak = 0;
+
+  if (isNewKeyframe(motion, p.keyframe_flow_px, p.keyframe_min_valid)) {
+    makeKeyframe(frame, image, aligned.T_world_frame, &tracked, false, out);
+    return;
+  }
+  FrameRecord r;
+  r.header = frame.header;
+  r.frame_index = frame.frame_index;
+  r.ref_kf = ref.id;
+  r.T_kf_frame = ref.ba.T_world_cam.inverse() * aligned.T_world_frame;
+  r.cov_rel = aligned.covariance;
+  r.state = trackingState();
+  frames.push_back(r);
+  out->pose = poseMessage(r);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Keyframes
+
+void Tracker::Impl::makeKeyframe(const Frame& frame, const PreparedImage& image,
+                                 const SE3& T_world_frame, const TrackedFlow* tracked, bool restart,
+                                 TrackerOutput* out) {
+  const GridGeometry& g = preparer->geometry();
+  KeyframeData kf = newKeyframeData(frame, image, T_world_frame);
+  const bool first = graph.empty();
+
+  // Initial inverse depth: sensor (RGB-D) > previous keyframe carried along the flow > median.
+  cv::Mat carried;
+  double fallback = p.init_inv_depth;
+  if (!first) {
+    const KeyframeData& prev = graph.last();
+    fallback = medianPositive(prev.ba.inv_depth, p.init_inv_depth);
+    if (tracked) {
+      const Correspondences& c = tracked->correspondences;
+      carried = splatInverseDepth(prev.ba.inv_depth, c.target, c.weight,
+                                  T_world_frame.inverse() * prev.ba.T_world_cam, g.grid);
+    }
+  }
+  if (mode == TrackerMode::kRgbd) fallback = medianPositive(kf.sensor_inv_depth, fallback);
+  kf.ba.inv_depth =
+      cv::Mat(g.gridSize(), CV_32FC1, cv::Scalar(std::numeric_limits<float>::quiet_NaN()));
+  if (mode == TrackerMode::kRgbd) kf.sensor_inv_depth.copyTo(kf.ba.inv_depth);
+  if (!carried.empty()) {
+    fillInverseDepth(&kf.ba.inv_depth, carried, fallback);
+  } else {
+    fillInverseDepth(&kf.ba.inv_depth, cv::Mat(), fallback);
+  }
+
+  const int id = graph.add(std::move(kf)).id;
+  // Keyframes leaving the window keep their estimate from now on: send its final state.
+  std::vector<int> leaving = graph.leaving();
+  if (restart) {
+    const std::vector<int> window = graph.windowIds();
+    leaving.assign(window.begin(), window.end() - 1);
+  }
+  for (int old : leaving) {
+    if (graph.changed(old, tolerance)) out->keyframes.push_back(keyframeMessage(old));
+  }
+  if (restart) graph.restartWindowAtLast();
+  graph.slideWindow();
+
+  if (mode == TrackerMode::kStereo) {
+    // Metric inverse depth from the disparity where it is measured.
+    measureStereo(id);
+    KeyframeData& k = graph.keyframe(id);
+    const GraphEdge* stereo = nullptr;
+    for (const GraphEdge& e : graph.edges()) {
+      if (e.i == id && e.T_i_other) stereo = &e;
+    }
+    if (stereo) {
+      cv::Mat d = stereoInverseDepth(stereo->target, stereo->weight, g.grid.fx, baseline_m);
+      fillInverseDepth(&d, k.ba.inv_depth, fallback);
+      k.ba.inv_depth = d;
+    }
+  }
+
+  std::vector<int> partners;
+  if (!first && !restart) {
+    partners =
+        graph.edgePartners(id, g.grid, p.min_edge_overlap, p.max_edge_partners, p.min_depth_ratio);
+  }
+  const bool can_ba = graph.windowIds().size() >= 2 || mode == TrackerMode::kStereo;
+  for (int round = 0; round < p.flow_ba_rounds; ++round) {
+    const auto t_flow = Clock::now();
+    for (int m : partners) {
+      if (round == 0 && tracked && !tracked->backward.empty() && m == partners.front()) {
+        // The frame's own flows against its reference keyframe are this pair's first measure.
+        const KeyframeData& k = graph.keyframe(id);
+        const KeyframeData& ref = graph.keyframe(m);
+        const Correspondences back = flowToCorrespondences(
+            k.grey, ref.grey, tracked->backward, tracked->forward, k.structure, g, flow_options);
+        graph.setEdge(GraphEdge{m, id, tracked->correspondences.target,
+                                tracked->correspondences.weight, std::nullopt});
+        graph.setEdge(GraphEdge{id, m, back.target, back.weight, std::nullopt});
+      } else {
+        measurePair(id, m);
+      }
+    }
+    if (mode == TrackerMode::kStereo && round > 0) measureStereo(id);
+    stats.flow_ms += msSince(t_flow);
+    if (can_ba) runBa(p.ba_iterations);
+  }
+  if (can_ba && ba_ran) updateMarginals();
+  if (!ba_ran || graph.keyframe(id).inv_depth_var.empty()) {
+    // No BA yet (monocular keyframe 0, RGB-D keyframe 0): the prior is all that is known.
+    setPriors();
+    KeyframeData& k = graph.keyframe(id);
+    k.inv_depth_var = k.ba.prior_inv_depth_var.clone();
+  }
+
+  FrameRecord r;
+  r.header = frame.header;
+  r.frame_index = frame.frame_index;
+  r.ref_kf = id;
+  r.is_keyframe = true;
+  r.state = trackingState();
+  frames.push_back(r);
+  emitChangedKeyframes(out);
+  out->pose = poseMessage(r);
+}
+
+void Tracker::Impl::measurePair(int a, int b) {
+  const GridGeometry& g = preparer->geometry();
+  const KeyframeData& ka = graph.keyframe(a);
+  const KeyframeData& kb = graph.keyframe(b);
+  const cv::Mat init_ab =
+      predictedFlow(reprojectKeyframe(g.grid, ka.ba, kb.ba.T_world_cam, p.min_depth_ratio), g);
+  const cv::Mat init_ba =
+      predictedFlow(reprojectKeyframe(g.grid, kb.ba, ka.ba.T_world_cam, p.min_depth_ratio), g);
+  const cv::Mat f_ab = flow.compute(ka.grey, kb.grey, init_ab);
+  const cv::Mat f_ba = flow.compute(kb.grey, ka.grey, init_ba);
+  Correspondences c_ab =
+      flowToCorrespondences(ka.grey, kb.grey, f_ab, f_ba, ka.structure, g, flow_options);
+  Correspondences c_ba =
+      flowToCorrespondences(kb.grey, ka.grey, f_ba, f_ab, kb.structure, g, flow_options);
+  graph.setEdge(GraphEdge{a, b, c_ab.target, c_ab.weight, std::nullopt});
+  graph.setEdge(GraphEdge{b, a, c_ba.target, c_ba.weight, std::nullopt});
+}
+
+void Tracker::Impl::measureStereo(int id) {
+  const GridGeometry& g = preparer->geometry();
+  const KeyframeData& k = graph.keyframe(id);
+  if (k.right_grey.empty() || !(baseline_m > 0)) return;
+  // Right camera at +baseline along the left camera's x: T_left_right = [I | (b, 0, 0)].
+  const SE3 T_left_right(SO3(), Vec3(baseline_m, 0, 0));
+  cv::Mat init;  // a new window's first keyframe has no metric depth yet: DIS starts from zero
+  if (graph.windowIds().size() > 1 || !k.inv_depth_var.empty()) {
+    init = predictedFlow(
+        reprojectKeyframe(g.grid, k.ba, k.ba.T_world_cam * T_left_right, p.min_depth_ratio), g);
+  }
+  const cv::Mat f_lr = flow.compute(k.grey, k.right_grey, init);
+  const cv::Mat f_rl =
+      flow.compute(k.right_grey, k.grey, init.empty() ? cv::Mat() : cv::Mat(-init));
+  const Correspondences c =
+      flowToCorrespondences(k.grey, k.right_grey, f_lr, f_rl, k.structure, g, flow_options);
+  graph.setEdge(GraphEdge{id, -1, c.target, c.weight, T_left_right});
+}
+
+void Tracker::Impl::setPriors() {
+  for (int id : graph.windowIds()) {
+    KeyframeData& k = graph.keyframe(id);
+    // A weak prior keeps pixels without parallax determined; in RGB-D the sensor prior replaces
+    // it where the sensor measured. Monocular "fixed": towards init_inv_depth, which also holds
+    // the map's scale (no data constrain it); otherwise towards the keyframe's median.
+    const double median = mode == TrackerMode::kMono && p.mono_prior_mean == "fixed"
+                              ? p.init_inv_depth
+                              : medianPositive(k.ba.inv_depth, p.init_inv_depth);
+    const double weak_sigma = p.mono_prior_rel_sigma * median;
+    k.ba.prior_inv_depth = cv::Mat(k.ba.inv_depth.size(), CV_32FC1, cv::Scalar(median));
+    k.ba.prior_inv_depth_var =
+        cv::Mat(k.ba.inv_depth.size(), CV_32FC1, cv::Scalar(weak_sigma * weak_sigma));
+    if (!k.sensor_inv_depth.empty()) {
+      for (int v = 0; v < k.sensor_inv_depth.rows; ++v) {
+        for (int u = 0; u < k.sensor_inv_depth.cols; ++u) {
+          const float var = k.sensor_inv_depth_var.at<float>(v, u);
+          if (var > 0 && std::isfinite(k.sensor_inv_depth.at<float>(v, u))) {
+            k.ba.prior_inv_depth.at<float>(v, u) = k.sensor_inv_depth.at<float>(v, u);
+            k.ba.prior_inv_depth_var.at<float>(v, u) = var;
+          }
+        }
+      }
+    }
+  }
+}
+
+bool Tracker::Impl::runBa(int iterations) {
+  const std::vector<int> window = graph.windowIds();
+  bool has_stereo = false;
+  for (const GraphEdge& e : graph.edges()) has_stereo |= e.T_i_other.has_value();
+  if (window.size() < 2 && !has_stereo) return false;
+  const GridGeometry& g = preparer->geometry();
+  setPriors();
+  std::vector<int> ids;
+  DenseBaProblem problem = graph.buildProblem(g.grid, &ids);
+  DenseBaOptions options = ba_options;
+  options.max_iterations = iterations;
+  if (mode != TrackerMode::kMono) {
+    options.gauge = DenseBaGauge::kFirstPose;
+  } else if (p.mono_gauge == "first_pose") {
+    options.gauge = DenseBaGauge::kFirstPose;
+  } else if (p.mono_gauge == "first_two_poses") {
+    options.gauge =
+        problem.keyframes.size() >= 2 ? DenseBaGauge::kFirstTwoPoses : DenseBaGauge::kFirstPose;
+  } else {
+    options.gauge = DenseBaGauge::kFirstPose;
+    if (problem.keyframes.size() >= 2) {
+      // Fixing a degenerate baseline (pure rotation) would fix noise; the prior keeps the
+      // scale then.
+      const double baseline = (problem.keyframes[1].T_world_cam.translation() -
+                               problem.keyframes[0].T_world_cam.translation())
+                                  .norm();
+      const double depth = 1.0 / medianPositive(problem.keyframes[0].inv_depth, 1.0);
+      if (baseline > 1e-4 * depth) options.gauge = DenseBaGauge::kFirstPoseAndScale;
+    }
+  }
+  ba.setOptions(options);
+  const DenseBaSummary summary = ba.optimize(&problem);
+  stats.ba_ms += summary.total_ms;
+  stats.ba_cost = summary.final_cost;
+  stats.ba_iterations = summary.iterations;
+  if (!summary.ok) return false;
+  graph.writeBack(problem, ids);
+  ba_ran = true;
+  return true;
+}
+
+void Tracker::Impl::updateMarginals() {
+  const auto t0 = Clock::now();
+  std::vector<int> ids;
+  const DenseBaProblem problem = graph.buildProblem(preparer->geometry().grid, &ids);
+  const DenseBaMarginals marginals = ba.computeMarginals(problem);
+  graph.setMarginals(marginals, ids);
+  stats.ba_ms += msSince(t0);
+}
+
+Keyframe Tracker::Impl::keyframeMessage(int id) {
+  const GridGeometry& g = preparer->geometry();
+  KeyframeData& k = graph.keyframe(id);
+  Keyframe msg;
+  msg.header = k.header;
+  msg.keyframe_id = id;
+  msg.version = graph.markSent(id);
+  msg.frame_index = k.frame_index;
+  msg.T_world_cam = k.ba.T_world_cam;
+  msg.covariance = k.covariance;
+  msg.camera = g.working;
+  msg.color = k.color;
+  cv::Mat var = k.inv_depth_var;
+  if (var.empty()) {
+    var = cv::Mat(k.ba.inv_depth.size(), CV_32FC1,
+                  cv::Scalar(std::numeric_limits<float>::infinity()));
+  }
+  const UpsampledDepth up = upsampleDepth(k.ba.inv_depth, var, k.grey, g.cell, upsampling);
+  msg.inv_depth = up.inv_depth;
+  msg.inv_depth_var = up.inv_depth_var;
+  msg.depth = up.depth;
+  msg.depth_var = up.depth_var;
+  return msg;
+}
+
+void Tracker::Impl::emitChangedKeyframes(TrackerOutput* out, bool now) {
+  for (int id : graph.toSend(tolerance, now)) out->keyframes.push_back(keyframeMessage(id));
+}
+
+}  // namespace radslam

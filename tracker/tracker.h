@@ -1,0 +1,169 @@
+// The tracker core: dense monocular / RGB-D / stereo SLAM front end around dense BA with exact
+// marginal covariances (NeRF-SLAM's tracking with DROID-SLAM's GRU replaced by DIS flow).
+// No LCM here: tracker/tracker_node.* wires it to the bus. DESIGN.md section 3.
+//
+/// Per frame: undistort + resize to the working resolution, dense flow from the last keyframe
+/// (warm-started from the pose predicted by constant velocity), motion-only alignment gives the
+/// frame's pose and covariance. When the mean flow to the last keyframe exceeds
+/// keyframe_flow_px (BA grid px) the frame becomes a keyframe: edges to its predecessor and to
+/// overlapping window keyframes, then flow_ba_rounds alternations of (flow warm-started from
+/// BA's prediction, BA), then exact marginals; new and changed keyframes are returned.
+///
+/// Frames keep their pose relative to their reference keyframe, so finish() re-emits every
+/// frame's pose with the final keyframe poses.
+///
+/// Monocular initialisation: keyframe 0 gets a constant inverse depth (init_inv_depth, scene
+/// units); frames are aligned against it from frame 1 on; the first BA runs with the second
+/// keyframe. A weak prior pulls each inverse depth towards the keyframe's median
+/// (sigma = mono_prior_rel_sigma x median) so that pixels without parallax (pure rotation) stay
+/// determined. Gauge: "first_pose_and_scale" (keyframe 0 of the window fixed and its distance to
+/// keyframe 1): the second keyframe keeps its rotation free, which pure-rotation starts need
+/// (DROID's first_two_poses would freeze keyframe 1 at its rough motion-only pose); the scale
+/// gauge falls back to the prior alone while the baseline is degenerate.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "common/types.h"
+#include "tracker/dense_ba.h"
+#include "tracker/depth_upsampling.h"
+#include "tracker/frontend.h"
+#include "tracker/frontend_flow.h"
+#include "tracker/keyframe_graph.h"
+
+namespace radslam {
+
+enum class TrackerMode { kMono, kRgbd, kStereo };
+
+/// "mono", "rgbd", "stereo"; throws std::invalid_argument otherwise.
+TrackerMode parseTrackerMode(const std::string& name);
+const char* trackerModeName(TrackerMode mode);
+
+/// Every tracker parameter (YAML section "tracker"; loadTrackerParams in tracker_node.h).
+struct TrackerParams {
+  std::string mode = "mono";  // mono | rgbd | stereo (the command line's --mode overrides)
+  int opencv_threads = 1;     // OpenCV worker threads (1: one process per core)
+
+  // Front end.
+  int working_width = 512;  // px; the height keeps the aspect ratio (multiple of grid_cell)
+  int grid_cell = 8;        // working px per BA grid px
+  std::string flow_preset = "fast";  // DIS preset: ultrafast | fast | medium
+  int flow_finest_scale = 2;
+  int flow_variational_iterations = 0;
+  int flow_patch_size = 8;
+  int flow_patch_stride = 4;
+  bool flow_spatial_propagation = true;
+  bool frame_backward_flow = true;  // forward-backward check on per-frame flow (one more flow)
+  double conf_sigma0_px = 0.05;     // grid px (see tracker/frontend_flow.h)
+  double conf_fb_gain = 1.0;
+  double conf_fb_max_px = 0.75;     // grid px
+  double conf_photo_scale = 100.0;  // grey levels
+  double conf_photo_max = 40.0;     // grey levels
+  double conf_grad_gain = 0.2;      // (grey/px)^2 grid px^2
+  double conf_grad_floor = 1.0;     // (grey/px)^2
+
+  // Keyframes and window.
+  double keyframe_flow_px = 2.5;    // grid px, mean flow to the last keyframe
+  double keyframe_min_valid = 0.4;  // fraction of tracked pixels below which a keyframe is made
+  int window_size = 8;              // keyframes in dense BA
+  int max_edge_partners = 3;        // earlier keyframes a new keyframe gets edges with
+  double min_edge_overlap = 0.5;    // fraction of pixels predicted inside the other image
+  int flow_ba_rounds = 2;           // (flow, BA) alternations per new keyframe
+  int ba_iterations = 4;            // Levenberg-Marquardt iterations per BA call
+  int final_ba_iterations = 8;      // in finish()
+
+  // Dense BA.
+  double huber_threshold = 2.4477;  // whitened residual norm
+  double min_depth_ratio = 0.2;
+  std::string mono_gauge = "first_pose";  // first_pose | first_pose_and_scale | first_two_poses
+  std::string mono_prior_mean = "fixed";  // fixed (init_inv_depth) | median (of the keyframe)
+  double init_inv_depth = 1.0;            // monocular keyframe 0, 1/scene unit
+  double mono_prior_rel_sigma = 1.0;      // weak inverse-depth prior, relative to the median
+
+  // RGB-D: sensor depth on the grid (median of the valid pixels of each cell) as an inverse-depth
+  // prior with sigma_z = depth_sigma_a + depth_sigma_b (z - depth_sigma_z0)^2 (m), Khoshelham &
+  // Elberink's Kinect model.
+  double depth_sigma_a = 0.0012;  // m
+  double depth_sigma_b = 0.0019;  // 1/m
+  double depth_sigma_z0 = 0.4;    // m
+  double depth_min_m = 0.1;
+  double depth_max_m = 20.0;
+  double depth_min_cell_fraction = 0.5;  // valid pixels a cell needs
+
+  // Per-frame alignment.
+  int motion_iterations = 10;
+  double lost_min_valid = 0.15;  // fraction of valid correspondences below which a frame is lost
+  int lost_reinit_frames = 5;    // consecutive lost frames before re-initialising
+
+  // Keyframe output (KEYFRAME messages at working resolution).
+  double upsample_sigma_range = 12.0;  // grey levels
+  double resend_rotation_deg = 0.1;
+  double resend_translation_rel = 2e-3;  // of the median depth
+  double resend_inv_depth_rel = 1e-2;
+  int resend_min_keyframes = 3;  // new keyframes between two re-sends of one keyframe
+};
+
+/// Throws std::invalid_argument naming the first parameter out of range.
+void validateTrackerParams(const TrackerParams& params);
+
+/// Figures for STATUS and the benchmark.
+struct TrackerStats {
+  int frames = 0;             // frames processed (with a pose)
+  int keyframes = 0;          // created so far
+  int window_size = 0;        // keyframes in the BA window
+  int edges = 0;              // flow edges in the window
+  double ba_cost = 0;         // final cost of the last BA call
+  int ba_iterations = 0;      // of the last BA call
+  double ba_ms = 0;           // BA time of this frame (all rounds), ms
+  double flow_ms = 0;         // flow + confidence time of this frame, ms
+  double frame_ms = 0;        // whole process() call, ms
+  double valid_fraction = 0;  // tracked pixels of this frame
+  double mean_flow_px = 0;    // to the last keyframe, grid px
+  int lost_frames = 0;        // frames reported LOST so far
+};
+
+struct TrackerOutput {
+  bool has_pose = false;
+  PoseStamped pose;
+  /// New keyframes, and window keyframes BA moved since they were last sent (higher version).
+  std::vector<Keyframe> keyframes;
+  /// finish() only: every frame's pose recomputed from its reference keyframe's final pose.
+  std::vector<PoseStamped> refreshed_poses;
+  TrackerStats stats;
+};
+
+class Tracker {
+ public:
+  /// Throws std::invalid_argument on invalid parameters.
+  explicit Tracker(TrackerParams params);
+  ~Tracker();
+  Tracker(const Tracker&) = delete;
+  Tracker& operator=(const Tracker&) = delete;
+
+  /// Processes the next frame (in order). Throws std::invalid_argument, naming what is wrong,
+  /// for a frame with bad content (empty or mismatched images, bad intrinsics, NaN, a camera
+  /// different from the first frame's, missing depth in RGB-D or right image in stereo mode);
+  /// the tracker's state is then unchanged and the caller skips the frame.
+  TrackerOutput process(const Frame& frame);
+
+  /// Final BA over the window, final keyframes (those changed since last sent) and every
+  /// frame's refreshed pose. Further process() calls continue tracking.
+  TrackerOutput finish();
+
+  const TrackerParams& params() const { return params_; }
+  TrackerMode mode() const { return mode_; }
+  /// Null before the first frame.
+  const GridGeometry* geometry() const;
+  const KeyframeGraph& graph() const;
+
+ private:
+  struct Impl;
+  TrackerParams params_;
+  TrackerMode mode_;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace radslam

@@ -1,0 +1,240 @@
+#include "tracker/tracker_node.h"
+
+#include <chrono>
+#include <iostream>
+#include <stdexcept>
+
+#include "common/cli.h"
+#include "common/params.h"
+
+namespace radslam {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double secondsSince(Clock::time_point t0) {
+  return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+// Warn about the first few of a kind, then every 100th, so a bad stream cannot flood the log.
+bool shouldWarn(int64_t count) { return count <= 5 || count % 100 == 0; }
+
+}  // namespace
+
+TrackerParams loadTrackerParams(const std::string& yaml_path,
+                                const std::vector<std::string>& overrides, std::string* dump,
+                                std::string* source) {
+  TrackerParams p;
+  ParamReader r(yaml_path, "tracker");
+  for (const std::string& o : overrides) r.addOverride(o);
+  r.get("mode", &p.mode);
+  r.get("opencv_threads", &p.opencv_threads);
+  r.get("working_width", &p.working_width);
+  r.get("grid_cell", &p.grid_cell);
+  r.get("flow_preset", &p.flow_preset);
+  r.get("flow_finest_scale", &p.flow_finest_scale);
+  r.get("flow_variational_iterations", &p.flow_variational_iterations);
+  r.get("flow_patch_size", &p.flow_patch_size);
+  r.get("flow_patch_stride", &p.flow_patch_stride);
+  r.get("flow_spatial_propagation", &p.flow_spatial_propagation);
+  r.get("frame_backward_flow", &p.frame_backward_flow);
+  r.get("conf_sigma0_px", &p.conf_sigma0_px);
+  r.get("conf_fb_gain", &p.conf_fb_gain);
+  r.get("conf_fb_max_px", &p.conf_fb_max_px);
+  r.get("conf_photo_scale", &p.conf_photo_scale);
+  r.get("conf_photo_max", &p.conf_photo_max);
+  r.get("conf_grad_gain", &p.conf_grad_gain);
+  r.get("conf_grad_floor", &p.conf_grad_floor);
+  r.get("keyframe_flow_px", &p.keyframe_flow_px);
+  r.get("keyframe_min_valid", &p.keyframe_min_valid);
+  r.get("window_size", &p.window_size);
+  r.get("max_edge_partners", &p.max_edge_partners);
+  r.get("min_edge_overlap", &p.min_edge_overlap);
+  r.get("flow_ba_rounds", &p.flow_ba_rounds);
+  r.get("ba_iterations", &p.ba_iterations);
+  r.get("final_ba_iterations", &p.final_ba_iterations);
+  r.get("huber_threshold", &p.huber_threshold);
+  r.get("min_depth_ratio", &p.min_depth_ratio);
+  r.get("mono_gauge", &p.mono_gauge);
+  r.get("mono_prior_mean", &p.mono_prior_mean);
+  r.get("init_inv_depth", &p.init_inv_depth);
+  r.get("mono_prior_rel_sigma", &p.mono_prior_rel_sigma);
+  r.get("depth_sigma_a", &p.depth_sigma_a);
+  r.get("depth_sigma_b", &p.depth_sigma_b);
+  r.get("depth_sigma_z0", &p.depth_sigma_z0);
+  r.get("depth_min_m", &p.depth_min_m);
+  r.get("depth_max_m", &p.depth_max_m);
+  r.get("depth_min_cell_fraction", &p.depth_min_cell_fraction);
+  r.get("motion_iterations", &p.motion_iterations);
+  r.get("lost_min_valid", &p.lost_min_valid);
+  r.get("lost_reinit_frames", &p.lost_reinit_frames);
+  r.get("upsample_sigma_range", &p.upsample_sigma_range);
+  r.get("resend_rotation_deg", &p.resend_rotation_deg);
+  r.get("resend_translation_rel", &p.resend_translation_rel);
+  r.get("resend_inv_depth_rel", &p.resend_inv_depth_rel);
+  r.get("resend_min_keyframes", &p.resend_min_keyframes);
+  r.finish();
+  try {
+    validateTrackerParams(p);
+  } catch (const std::invalid_argument& e) {
+    throw std::runtime_error(r.source() + ": " + e.what());
+  }
+  if (dump) *dump = r.dump();
+  if (source) *source = r.source();
+  return p;
+}
+
+TrackerNode::TrackerNode(Bus* bus, TrackerParams params, TrackerNodeOptions options)
+    : bus_(bus),
+      params_(std::move(params)),
+      options_(options),
+      tracker_(std::make_unique<Tracker>(params_)),
+      reporter_("tracker") {
+  if (options_.max_queue < 1) throw std::invalid_argument("tracker queue must hold >= 1 frame");
+  bus_->subscribe<Frame>(channel::kCamera, [this](const Frame& f) { onFrame(f); });
+  bus_->subscribe<Control>(channel::kControl, [this](const Control& c) { onControl(c); });
+}
+
+void TrackerNode::onFrame(const Frame& frame) {
+  queue_.push_back(frame);
+  while (static_cast<int>(queue_.size()) > options_.max_queue) {
+    ++dropped_;
+    if (shouldWarn(dropped_)) {
+      std::cerr << "radslam-tracker: warning: " << bus_->fullChannel(channel::kCamera)
+                << ": frames arrive faster than they are tracked; dropped frame "
+                << queue_.front().frame_index << " (" << dropped_ << " dropped so far)\n";
+    }
+    queue_.pop_front();
+  }
+  reporter_.setQueueDepth(static_cast<int32_t>(queue_.size()));
+}
+
+void TrackerNode::onControl(const Control& control) {
+  if (!control.target.empty() && control.target != "tracker") return;
+  if (control.command == ControlCommand::kStop) requestStop();
+  if (control.command == ControlCommand::kReset) reset_requested_ = true;
+}
+
+void TrackerNode::handle(const Frame& frame) {
+  const std::string camera = bus_->fullChannel(channel::kCamera);
+  if (frame.frame_index <= last_index_) {
+    ++rejected_;
+    if (shouldWarn(rejected_)) {
+      std::cerr << "radslam-tracker: warning: " << camera << ": skipped frame " << frame.frame_index
+                << ": not after frame " << last_index_ << "\n";
+    }
+    return;
+  }
+  TrackerOutput output;
+  try {
+    BusyTimer::Scope busy(reporter_.busy());
+    output = tracker_->process(frame);
+  } catch (const std::invalid_argument& e) {
+    ++rejected_;
+    reporter_.setError(std::string(camera) + ": " + e.what());
+    if (shouldWarn(rejected_)) {
+      std::cerr << "radslam-tracker: warning: " << camera << ": skipped " << e.what() << "\n";
+    }
+  }
+  last_index_ = frame.frame_index;
+  if (output.has_pose) {
+    ++processed_;
+    publish(output);
+  }
+  // The acknowledgement (lock-step playback) follows the frame's POSE and KEYFRAMEs, also for
+  // a skipped frame so that playback goes on.
+  reporter_.itemHandled(frame.frame_index, frame.header.utime);
+  reporter_.setQueueDepth(static_cast<int32_t>(queue_.size()));
+  publishStatus(ProcessState::kRunning);
+}
+
+void TrackerNode::publish(const TrackerOutput& output) {
+  last_stats_ = output.stats;
+  try {
+    if (output.has_pose) bus_->publish(channel::kPose, output.pose);
+    for (const Keyframe& kf : output.keyframes) bus_->publish(channel::kKeyframe, kf);
+    for (const PoseStamped& pose : output.refreshed_poses) bus_->publish(channel::kPose, pose);
+  } catch (const std::invalid_argument& e) {
+    reporter_.setError(e.what());
+    std::cerr << "radslam-tracker: warning: cannot publish: " << e.what() << "\n";
+  }
+}
+
+void TrackerNode::publishStatus(ProcessState state) {
+  reporter_.setState(state);
+  const TrackerStats& s = last_stats_;
+  reporter_.setValue("keyframes", s.keyframes);
+  reporter_.setValue("window", s.window_size);
+  reporter_.setValue("edges", s.edges);
+  reporter_.setValue("ba_cost", s.ba_cost);
+  reporter_.setValue("ba_ms", s.ba_ms);
+  reporter_.setValue("flow_ms", s.flow_ms);
+  reporter_.setValue("frame_ms", s.frame_ms);
+  reporter_.setValue("valid_fraction", s.valid_fraction);
+  reporter_.setValue("lost_frames", s.lost_frames);
+  reporter_.setValue("dropped_frames", static_cast<double>(dropped_));
+  reporter_.setValue("rejected_frames", static_cast<double>(rejected_));
+  bus_->publish(channel::kStatus, reporter_.make());
+}
+
+void TrackerNode::processQueued() {
+  while (!queue_.empty()) {
+    if (reset_requested_) {
+      // CONTROL RESET: a fresh map from the next frame on.
+      reset_requested_ = false;
+      tracker_ = std::make_unique<Tracker>(params_);
+      last_index_ = -1;
+      std::cerr << "radslam-tracker: reset\n";
+    }
+    const Frame frame = std::move(queue_.front());
+    queue_.pop_front();
+    handle(frame);
+    // Keep the queue current (and hear CONTROL) between frames.
+    if (bus_->handle(0) < 0) break;
+  }
+}
+
+void TrackerNode::finish() {
+  TrackerOutput output;
+  {
+    BusyTimer::Scope busy(reporter_.busy());
+    output = tracker_->finish();
+  }
+  publish(output);
+  std::cerr << "radslam-tracker: finished: " << processed_ << " frames tracked, "
+            << output.stats.keyframes << " keyframes, " << dropped_ << " dropped, " << rejected_
+            << " skipped, " << output.stats.lost_frames << " lost; re-sent "
+            << output.keyframes.size() << " keyframes and " << output.refreshed_poses.size()
+            << " poses\n";
+  publishStatus(ProcessState::kDone);
+}
+
+int TrackerNode::run() {
+  publishStatus(ProcessState::kIdle);
+  auto last_status = Clock::now();
+  auto last_frame = Clock::now();
+  bool ended = false;
+  while (!stopRequested() && !ended) {
+    const int handled = bus_->handle(50);
+    if (handled < 0) ended = true;  // e.g. the end of a file:// log
+    if (!queue_.empty()) {
+      processQueued();
+      last_frame = Clock::now();
+    }
+    if (secondsSince(last_status) >= options_.status_period_s) {
+      publishStatus(processed_ > 0 ? ProcessState::kRunning : ProcessState::kIdle);
+      last_status = Clock::now();
+    }
+    if (options_.idle_exit_s > 0 && processed_ > 0 &&
+        secondsSince(last_frame) > options_.idle_exit_s) {
+      break;
+    }
+  }
+  // Drain: what LCM still holds goes through the queue (processQueued polls between frames).
+  if (!ended) bus_->handle(0);
+  processQueued();
+  finish();
+  return 0;
+}
+
+}  // namespace radslam

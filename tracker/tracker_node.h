@@ -1,0 +1,72 @@
+// The tracker process's bus wiring: CAMERA in; POSE, KEYFRAME and STATUS out; CONTROL for stop
+// and reset. The core (tracker/tracker.h) knows nothing of the bus.
+#pragma once
+
+#include <cstdint>
+#include <deque>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "common/bus.h"
+#include "common/process_stats.h"
+#include "tracker/tracker.h"
+
+namespace radslam {
+
+/// TrackerParams from the "tracker" section of a YAML file ("" = defaults), then "key=value"
+/// overrides. Every field is read; unknown keys are an error (std::runtime_error naming the
+/// file and the keys). *dump (optional) receives the values in force as YAML.
+TrackerParams loadTrackerParams(const std::string& yaml_path,
+                                const std::vector<std::string>& overrides = {},
+                                std::string* dump = nullptr, std::string* source = nullptr);
+
+struct TrackerNodeOptions {
+  /// Frames waiting to be processed beyond this are dropped, oldest first, with a counted
+  /// warning (lock-step playback never queues more than one).
+  int max_queue = 4;
+  double status_period_s = 0.5;  // heartbeat (~2 Hz) besides the per-frame acknowledgement
+  /// Exit after this long without a frame once at least one was processed (0 = never); for
+  /// file:// replays whose end the bus reports anyway.
+  double idle_exit_s = 0;
+};
+
+/// Runs a Tracker on the bus until a stop is requested (SIGINT/SIGTERM through common/cli.h,
+/// or CONTROL STOP for "" or "tracker"), or a file:// log ends. Then it processes the frames
+/// still queued, calls finish(), publishes the final keyframes and refreshed poses and a DONE
+/// status.
+class TrackerNode {
+ public:
+  /// Subscribes to CAMERA and CONTROL on `bus`. Throws std::invalid_argument on bad params.
+  TrackerNode(Bus* bus, TrackerParams params, TrackerNodeOptions options = {});
+
+  /// The loop; returns the process exit code (0).
+  int run();
+
+  /// Figures (also for tests).
+  int64_t framesProcessed() const { return processed_; }
+  int64_t framesDropped() const { return dropped_; }
+  int64_t framesRejected() const { return rejected_; }
+
+ private:
+  void onFrame(const Frame& frame);
+  void onControl(const Control& control);
+  void processQueued();
+  void handle(const Frame& frame);
+  void publish(const TrackerOutput& output);
+  void publishStatus(ProcessState state);
+  void finish();
+
+  Bus* bus_;
+  TrackerParams params_;
+  TrackerNodeOptions options_;
+  std::unique_ptr<Tracker> tracker_;
+  StatusReporter reporter_;
+  std::deque<Frame> queue_;
+  int64_t last_index_ = -1;
+  int64_t processed_ = 0, dropped_ = 0, rejected_ = 0;
+  bool reset_requested_ = false;
+  TrackerStats last_stats_;
+};
+
+}  // namespace radslam
