@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <iostream>
 #include <stdexcept>
 
 #include "mapper/field_io.h"
@@ -64,10 +65,26 @@ void Mapper::allocateFor(const KeyframeEntry& entry) {
   const cv::Mat& mask = kf.dynamic_mask;
   const int fine_level = field_.numLevels() - 1;
   const int first_new = field_.numBlocks(fine_level);
+  std::vector<float> valid_depths;
+  for (int y = params_.alloc_stride / 2; y < kf.camera.height; y += params_.alloc_stride)
+    for (int x = params_.alloc_stride / 2; x < kf.camera.width; x += params_.alloc_stride)
+      if (kf.depth.at<float>(y, x) > 0) valid_depths.push_back(kf.depth.at<float>(y, x));
+  if (valid_depths.empty()) return;
+  std::nth_element(valid_depths.begin(), valid_depths.begin() + valid_depths.size() / 2,
+                   valid_depths.end());
+  const float max_depth = params_.alloc_max_depth_ratio * valid_depths[valid_depths.size() / 2];
   for (int y = params_.alloc_stride / 2; y < kf.camera.height; y += params_.alloc_stride) {
     for (int x = params_.alloc_stride / 2; x < kf.camera.width; x += params_.alloc_stride) {
+      if (field_.numBlocks(fine_level) >= params_.max_fine_blocks) {
+        if (!block_budget_warned_) {
+          std::cerr << "radslam-mapper: warning: fine block budget (" << params_.max_fine_blocks
+                    << ") reached; further surfaces are not allocated\n";
+          block_budget_warned_ = true;
+        }
+        break;
+      }
       const float d = kf.depth.at<float>(y, x);
-      if (!(d > 0)) continue;
+      if (!(d > 0) || d > max_depth) continue;
       if (!mask.empty() && mask.at<uint8_t>(y, x) != 0) continue;
       const float sigma =
           std::clamp(std::sqrt(kf.depth_var.at<float>(y, x)), sp.sigma_min, sp.sigma_max);

@@ -25,6 +25,11 @@ struct MapperParams {
   // Allocation around each keyframe's depth.
   int alloc_stride = 4;         // pixels
   float alloc_sigma_range = 3;  // depth sigmas either side of the depth
+  /// Memory bound: no fine blocks are allocated past this many (about 8 KB each with RGB), and
+  /// pixels deeper than this many times the keyframe's median depth are not allocated for
+  /// (monocular depth outliers would otherwise allocate long empty segments).
+  int max_fine_blocks = 60000;
+  float alloc_max_depth_ratio = 4;
   /// Newly allocated fine voxels at a keyframe's depth start opaque (this raw density) with
   /// the pixel's colour, so training starts from the depth prior instead of fog; 0 = off.
   double seed_density = 8;
@@ -95,6 +100,7 @@ class Mapper {
   Trainer trainer_;
   VolumeRenderer renderer_;
   int64_t version_floor_ = 0;  // field versions stay monotonic across resets
+  bool block_budget_warned_ = false;
 };
 
 /// Median of the valid (> 0, finite) depths of a keyframe, 0 when none.

@@ -38,6 +38,8 @@ MapperNodeParams loadMapperParams(const std::string& yaml_path,
   r.get("density_bias", &c.density_bias);
   r.get("alloc_stride", &c.alloc_stride);
   getFloat(r, "alloc_sigma_range", &c.alloc_sigma_range);
+  r.get("max_fine_blocks", &c.max_fine_blocks);
+  getFloat(r, "alloc_max_depth_ratio", &c.alloc_max_depth_ratio);
   r.get("seed_density", &c.seed_density);
   // Training.
   TrainerParams& t = c.trainer;
