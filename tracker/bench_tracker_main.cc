@@ -8,12 +8,15 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+
+#include <malloc.h>
 #include <map>
 #include <sstream>
 
 #include "common/cli.h"
 #include "common/dataset.h"
 #include "common/evaluation.h"
+#include "common/exr_io.h"
 #include "common/process_stats.h"
 #include "common/trajectory.h"
 #include "tracker/tracker_node.h"
@@ -30,6 +33,9 @@ const char* kUsage = R"(usage: radslam-bench-tracker --dataset KIND:PATH [option
   --name NAME          sequence name in the output (default: the dataset folder's name)
   --trajectory FILE    write the final trajectory (TUM format)
   --json FILE          write the result as JSON
+  --out DIR            write DIR/trajectory.txt, DIR/keyframes.txt (TUM format) and
+                       DIR/keyframes/<timestamp>.exr (channels depth, sigma; the run-folder layout)
+                       and DIR/keyframes/camera.yaml (the keyframe images' pinhole intrinsics)
   --quiet              no per-frame progress
 )";
 
@@ -53,6 +59,38 @@ std::string sequenceName(const std::string& spec) {
   return std::filesystem::path(path).filename().string();
 }
 
+std::string stampName(int64_t utime) {
+  char buffer[64];
+  std::snprintf(buffer, sizeof(buffer), "%.6f", static_cast<double>(utime) * 1e-6);
+  return buffer;
+}
+
+/// The recorder's run-folder layout, so that the mapper's benchmark reads either.
+void writeRunFolder(const std::string& dir, const Trajectory& estimate,
+                    const std::map<int64_t, Keyframe>& keyframes) {
+  std::filesystem::create_directories(dir + "/keyframes");
+  writeTumTrajectory(dir + "/trajectory.txt", estimate);
+  Trajectory keyframe_poses;
+  for (const auto& [id, k] : keyframes) {
+    keyframe_poses.push_back({static_cast<double>(k.header.utime) * 1e-6, k.T_world_cam});
+    cv::Mat sigma;
+    cv::sqrt(cv::max(k.depth_var, 0.0), sigma);
+    writeExr(dir + "/keyframes/" + stampName(k.header.utime) + ".exr",
+             {{"depth", k.depth}, {"sigma", sigma}});
+  }
+  if (!keyframes.empty()) {
+    // Keyframe images are undistorted at the working resolution: their own intrinsics.
+    const CameraModel& c = keyframes.begin()->second.camera;
+    std::ofstream yaml(dir + "/keyframes/camera.yaml");
+    yaml << "%YAML:1.0\nwidth: " << c.width << "\nheight: " << c.height << "\nfx: " << c.fx
+         << "\nfy: " << c.fy << "\ncx: " << c.cx << "\ncy: " << c.cy << "\n";
+    if (!yaml) throw std::runtime_error("cannot write " + dir + "/keyframes/camera.yaml");
+  }
+  std::sort(keyframe_poses.begin(), keyframe_poses.end(),
+            [](const StampedPose& a, const StampedPose& b) { return a.t < b.t; });
+  writeTumTrajectory(dir + "/keyframes.txt", keyframe_poses);
+}
+
 int run(int argc, char** argv) {
   CommandLine cli(argc, argv, kUsage);
   if (cli.helpRequested()) {
@@ -68,6 +106,7 @@ int run(int argc, char** argv) {
   std::string name = cli.get("name", "");
   const std::string trajectory_path = cli.get("trajectory", "");
   const std::string json_path = cli.get("json", "");
+  const std::string out_dir = cli.get("out", "");
   const bool quiet = cli.getBool("quiet", false);
   cli.finish();
   if (spec.empty()) throw std::runtime_error("--dataset is required\n" + cli.usage());
@@ -84,7 +123,12 @@ int run(int argc, char** argv) {
                               : std::min(end_arg, static_cast<int>(dataset->size()));
 
   Tracker tracker(params);
-  std::map<int64_t, PoseStamped> poses;  // latest per frame index, as the recorder keeps them
+  std::map<int64_t, PoseStamped> poses;       // latest per frame index, as the recorder keeps them
+  std::map<int64_t, Keyframe> keyframe_msgs;  // latest version per keyframe id
+  const auto keep = [&](const std::vector<Keyframe>& list) {
+    if (out_dir.empty()) return;
+    for (const Keyframe& k : list) keyframe_msgs[k.keyframe_id] = k;
+  };
   double wall_s = 0, cpu_s = 0;
   int frames = 0, skipped = 0;
   for (int i = start; i < end; ++i) {
@@ -109,6 +153,7 @@ int run(int argc, char** argv) {
     wall_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     ++frames;
     if (out.has_pose) poses[out.pose.frame_index] = out.pose;
+    keep(out.keyframes);
     if (!quiet && (frames % 20 == 0)) {
       std::cerr << "  frame " << i << ": " << out.stats.keyframes << " keyframes, flow "
                 << out.stats.flow_ms << " ms, BA " << out.stats.ba_ms << " ms, frame "
@@ -117,6 +162,7 @@ int run(int argc, char** argv) {
   }
   const TrackerOutput final_out = tracker.finish();
   for (const PoseStamped& p : final_out.refreshed_poses) poses[p.frame_index] = p;
+  keep(final_out.keyframes);
 
   Trajectory estimate;
   for (const auto& [index, pose] : poses) {
@@ -125,6 +171,7 @@ int run(int argc, char** argv) {
     }
   }
   if (!trajectory_path.empty()) writeTumTrajectory(trajectory_path, estimate);
+  if (!out_dir.empty()) writeRunFolder(out_dir, estimate, keyframe_msgs);
 
   const std::string alignment = params.mode == "mono" ? "sim3" : "se3";
   TrajectoryErrors errors;
@@ -183,5 +230,9 @@ int run(int argc, char** argv) {
 }  // namespace radslam
 
 int main(int argc, char** argv) {
+  // Every frame allocates and frees images of a few hundred kB; by default glibc maps them
+  // afresh and the page faults cost ~15% of the tracker's CPU time (measured): keep them.
+  mallopt(M_MMAP_THRESHOLD, 64 << 20);
+  mallopt(M_TRIM_THRESHOLD, 256 << 20);
   return radslam::runMain("radslam-bench-tracker", radslam::run, argc, argv);
 }

@@ -159,10 +159,13 @@ void validateFrame(const Frame& frame) {
   }
 }
 
-FlowMotion measureFlowMotion(const cv::Mat& target, const cv::Mat& weight) {
+namespace {
+
+FlowMotion flowMotion(const cv::Mat& target, const cv::Mat& weight, const CameraModel* grid,
+                      const Mat3& R_b_a) {
   CV_Assert(target.type() == CV_32FC2 && weight.type() == CV_32FC2 &&
             target.size() == weight.size());
-  double sum = 0;
+  double sum = 0, sum_rotation = 0, sum_parallax = 0;
   int n = 0;
   for (int v = 0; v < target.rows; ++v) {
     const cv::Vec2f* t = target.ptr<cv::Vec2f>(v);
@@ -173,16 +176,42 @@ FlowMotion measureFlowMotion(const cv::Mat& target, const cv::Mat& weight) {
       if (!std::isfinite(du) || !std::isfinite(dv)) continue;
       sum += std::sqrt(du * du + dv * dv);
       ++n;
+      if (!grid) continue;
+      // Where the pixel would go under the rotation alone (a point at infinity).
+      const Vec3 ray((u - grid->cx) / grid->fx, (v - grid->cy) / grid->fy, 1.0);
+      const Vec3 q = R_b_a * ray;
+      if (!(q.z() > 1e-6)) continue;
+      const double qu = grid->fx * q.x() / q.z() + grid->cx;
+      const double qv = grid->fy * q.y() / q.z() + grid->cy;
+      sum_rotation += std::hypot(qu - u, qv - v);
+      sum_parallax += std::hypot(t[u][0] - qu, t[u][1] - qv);
     }
   }
   FlowMotion m;
   m.valid_fraction = target.total() > 0 ? static_cast<double>(n) / target.total() : 0;
   m.mean_flow_px = n > 0 ? sum / n : 0;
+  if (grid) {
+    m.mean_rotation_px = n > 0 ? sum_rotation / n : 0;
+    m.mean_parallax_px = n > 0 ? sum_parallax / n : 0;
+  }
   return m;
 }
 
-bool isNewKeyframe(const FlowMotion& motion, double threshold_px, double min_valid_fraction) {
-  return motion.mean_flow_px > threshold_px || motion.valid_fraction < min_valid_fraction;
+}  // namespace
+
+FlowMotion measureFlowMotion(const cv::Mat& target, const cv::Mat& weight) {
+  return flowMotion(target, weight, nullptr, Mat3::Identity());
+}
+
+FlowMotion measureFlowMotion(const cv::Mat& target, const cv::Mat& weight, const CameraModel& grid,
+                             const Mat3& R_b_a) {
+  return flowMotion(target, weight, &grid, R_b_a);
+}
+
+bool isNewKeyframe(const FlowMotion& m, const KeyframePolicy& policy) {
+  if (m.valid_fraction < policy.min_valid_fraction) return true;
+  if (m.mean_parallax_px < 0 || m.mean_rotation_px < 0) return m.mean_flow_px > policy.flow_px;
+  return m.mean_parallax_px > policy.flow_px || m.mean_rotation_px > policy.rotation_px;
 }
 
 cv::Mat toGrey(const cv::Mat& image) {

@@ -85,16 +85,33 @@ class ImagePreparer {
 void validateFrame(const Frame& frame);
 
 /// Mean displacement |target(p) - p| (grid pixels) over the pixels with a positive weight, and
-/// the fraction of such pixels; the keyframe test of DROID-SLAM's motion filter.
+/// the fraction of such pixels (DROID-SLAM's motion filter). The second form also splits the
+/// displacement with the relative rotation R_b_a of the two views: the part a pure rotation
+/// would cause, |Pi(R_b_a Pi^-1(p)) - p|, and the parallax left, |target(p) - Pi(R_b_a Pi^-1(p))|
+/// (translation); only parallax conditions the depths and the baseline.
 struct FlowMotion {
-  double mean_flow_px = 0;    // grid px
-  double valid_fraction = 0;  // [0, 1]
+  double mean_flow_px = 0;       // grid px
+  double valid_fraction = 0;     // [0, 1]
+  double mean_rotation_px = -1;  // grid px; -1 when not measured
+  double mean_parallax_px = -1;  // grid px; -1 when not measured
 };
 FlowMotion measureFlowMotion(const cv::Mat& target, const cv::Mat& weight);
+FlowMotion measureFlowMotion(const cv::Mat& target, const cv::Mat& weight, const CameraModel& grid,
+                             const Mat3& R_b_a);
 
-/// A new keyframe when the mean flow to the last keyframe exceeds threshold_px (grid px) or
-/// when fewer than min_valid_fraction of the last keyframe's pixels are still tracked.
-bool isNewKeyframe(const FlowMotion& motion, double threshold_px, double min_valid_fraction);
+struct KeyframePolicy {
+  double flow_px = 2.5;      // grid px: mean parallax (mean flow when the split is not measured)
+  double rotation_px = 8.0;  // grid px: mean flow a pure rotation alone may cause
+  double min_valid_fraction = 0.4;
+};
+
+/// A new keyframe when fewer than min_valid_fraction of the last keyframe's pixels are still
+/// tracked, when the parallax exceeds flow_px or when the rotation alone moves pixels by more
+/// than rotation_px. Only parallax conditions depths and baselines, so rotation makes keyframes
+/// only as the view leaves the keyframe (DSO weighs rotational flow likewise lower); the
+/// frames in between are aligned against the keyframe's depths. Without the split the mean
+/// flow decides alone (DROID-SLAM's motion filter).
+bool isNewKeyframe(const FlowMotion& motion, const KeyframePolicy& policy);
 
 /// Grey conversion of an 8-bit image (BGR or already grey).
 cv::Mat toGrey(const cv::Mat& image);

@@ -1,5 +1,7 @@
 #include "tracker/frontend_flow.h"
 
+#include "tracker/frontend_refine.h"
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -91,18 +93,17 @@ cv::Mat predictedFlow(const cv::Mat& grid_targets, const GridGeometry& geometry)
   return out;
 }
 
-cv::Mat cellStructureTensor(const cv::Mat& grey, int cell) {
-  CV_Assert(grey.type() == CV_8UC1 && grey.cols % cell == 0 && grey.rows % cell == 0);
-  cv::Mat gx, gy;
-  // The 3x3 Sobel sums 8 x the central difference: scale 1/8 gives grey levels per pixel.
-  cv::Sobel(grey, gx, CV_32F, 1, 0, 3, 0.125, 0, cv::BORDER_REPLICATE);
-  cv::Sobel(grey, gy, CV_32F, 0, 1, 3, 0.125, 0, cv::BORDER_REPLICATE);
+cv::Mat cellStructureTensor(const cv::Mat& gradients, int cell) {
+  CV_Assert(gradients.type() == CV_32FC2 && gradients.cols % cell == 0 &&
+            gradients.rows % cell == 0);
+  cv::Mat g[2];
+  cv::split(gradients, g);
   // Cell means of the three products, then one small merge (cheaper than a 3-channel resize).
-  const cv::Size grid(grey.cols / cell, grey.rows / cell);
+  const cv::Size grid(gradients.cols / cell, gradients.rows / cell);
   cv::Mat xx, xy, yy, out;
-  cv::resize(gx.mul(gx), xx, grid, 0, 0, cv::INTER_AREA);
-  cv::resize(gx.mul(gy), xy, grid, 0, 0, cv::INTER_AREA);
-  cv::resize(gy.mul(gy), yy, grid, 0, 0, cv::INTER_AREA);
+  cv::resize(g[0].mul(g[0]), xx, grid, 0, 0, cv::INTER_AREA);
+  cv::resize(g[0].mul(g[1]), xy, grid, 0, 0, cv::INTER_AREA);
+  cv::resize(g[1].mul(g[1]), yy, grid, 0, 0, cv::INTER_AREA);
   cv::merge(std::vector<cv::Mat>{xx, xy, yy}, out);
   return out;
 }
@@ -111,7 +112,8 @@ Correspondences flowToCorrespondences(const cv::Mat& grey_a, const cv::Mat& grey
                                       const cv::Mat& flow_ab, const cv::Mat& flow_ba,
                                       const GridGeometry& geometry, const FlowOptions& options) {
   return flowToCorrespondences(grey_a, grey_b, flow_ab, flow_ba,
-                               cellStructureTensor(grey_a, geometry.cell), geometry, options);
+                               cellStructureTensor(imageGradients(grey_a), geometry.cell), geometry,
+                               options);
 }
 
 Correspondences flowToCorrespondences(const cv::Mat& grey_a, const cv::Mat& grey_b,

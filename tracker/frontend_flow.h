@@ -100,8 +100,9 @@ Correspondences flowToCorrespondences(const cv::Mat& grey_a, const cv::Mat& grey
                                       const GridGeometry& geometry, const FlowOptions& options);
 
 /// Structure tensor J = mean(g g^T) of each grid cell, (grey/working px)^2, as CV_32FC3
-/// (Jxx, Jxy, Jyy) of grid size. Depends on the image only (cache it per keyframe).
-cv::Mat cellStructureTensor(const cv::Mat& grey, int cell);
+/// (Jxx, Jxy, Jyy) of grid size, from imageGradients() (tracker/frontend_refine.h). Depends on
+/// the image only (cache it per keyframe).
+cv::Mat cellStructureTensor(const cv::Mat& gradients, int cell);
 
 /// As flowToCorrespondences with the structure tensor of a precomputed.
 Correspondences flowToCorrespondences(const cv::Mat& grey_a, const cv::Mat& grey_b,

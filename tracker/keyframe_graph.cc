@@ -23,10 +23,17 @@ double medianPositive(const cv::Mat& image, double fallback) {
   return values[mid];
 }
 
-KeyframeGraph::KeyframeGraph(int window_size) : window_size_(window_size) {
+KeyframeGraph::KeyframeGraph(int window_size, int max_kept_images, bool departed_edges_as_anchors)
+    : window_size_(window_size),
+      max_kept_images_(max_kept_images),
+      departed_edges_as_anchors_(departed_edges_as_anchors) {
   if (window_size < 2) {
     throw std::invalid_argument("keyframe window size must be >= 2, got " +
                                 std::to_string(window_size));
+  }
+  if (max_kept_images < 0) {
+    throw std::invalid_argument("number of kept keyframe images must be >= 0, got " +
+                                std::to_string(max_kept_images));
   }
 }
 
@@ -55,20 +62,51 @@ std::vector<int> KeyframeGraph::slideWindow() {
   for (int id : left) {
     KeyframeData& kf = keyframes_[id];
     kf.in_window = false;
-    // Pose, covariance, inverse depth stay; the images are not needed any more.
+    // Pose, covariance and inverse depth stay; as an anchor of loop edges the keyframe is
+    // fixed and its depths are held by its last estimate and marginal variance.
+    if (!kf.inv_depth_var.empty()) {
+      kf.ba.prior_inv_depth = kf.ba.inv_depth.clone();
+      kf.ba.prior_inv_depth_var = kf.inv_depth_var.clone();
+    }
+    kf.ba.fixed_pose = true;
+    // Of the images only the grey one (and its structure tensor) stays, for loop edges.
     kf.color.release();
-    kf.grey.release();
     kf.right_grey.release();
-    kf.structure.release();
+    kf.gradients.release();
+    if (max_kept_images_ > 0) {
+      kept_images_.push_back(id);
+    } else {
+      kf.grey.release();
+      kf.structure.release();
+    }
     kf.sensor_inv_depth.release();
     kf.sensor_inv_depth_var.release();
     kf.sent_inv_depth.release();
   }
+  while (static_cast<int>(kept_images_.size()) > max_kept_images_) {
+    keyframes_[kept_images_.front()].grey.release();
+    keyframes_[kept_images_.front()].structure.release();
+    kept_images_.erase(kept_images_.begin());
+  }
   if (!left.empty()) {
     auto gone = [&](int id) { return id >= 0 && !keyframes_[id].in_window; };
-    edges_.erase(std::remove_if(edges_.begin(), edges_.end(),
-                                [&](const GraphEdge& e) { return gone(e.i) || gone(e.j); }),
-                 edges_.end());
+    std::vector<GraphEdge> kept;
+    for (GraphEdge& e : edges_) {
+      if (e.anchor >= 0) {
+        // A loop edge goes with its window endpoint.
+        if (!gone(e.anchor == e.i ? e.j : e.i)) kept.push_back(std::move(e));
+        continue;
+      }
+      const bool i_gone = gone(e.i), j_gone = gone(e.j);
+      if (!i_gone && !j_gone) {
+        kept.push_back(std::move(e));
+      } else if (departed_edges_as_anchors_ && !e.T_i_other && i_gone != j_gone) {
+        // The keyframe that left still constrains the window through this edge.
+        e.anchor = i_gone ? e.i : e.j;
+        kept.push_back(std::move(e));
+      }
+    }
+    edges_ = std::move(kept);
   }
   return left;
 }
@@ -77,9 +115,13 @@ void KeyframeGraph::restartWindowAtLast() {
   if (window_.size() <= 1) return;
   const int keep = window_.back();
   const int saved = window_size_;
+  const bool saved_anchors = departed_edges_as_anchors_;
+  // A restarted window has no known relation to the old one: no edges survive.
   window_size_ = 1;
+  departed_edges_as_anchors_ = false;
   slideWindow();
   window_size_ = saved;
+  departed_edges_as_anchors_ = saved_anchors;
   window_ = {keep};
 }
 
@@ -123,6 +165,15 @@ std::vector<int> KeyframeGraph::edgePartners(int id, const CameraModel& grid, do
   return partners;
 }
 
+int KeyframeGraph::loopPartner(int id, const CameraModel& grid, double min_overlap,
+                               double min_depth_ratio) const {
+  for (int old : kept_images_) {  // oldest first
+    if (old == id || keyframes_[old].grey.empty()) continue;
+    if (overlap(id, old, grid, min_depth_ratio) > min_overlap) return old;
+  }
+  return -1;
+}
+
 DenseBaProblem KeyframeGraph::buildProblem(const CameraModel& grid, std::vector<int>* ids) const {
   DenseBaProblem problem;
   problem.camera = grid;
@@ -131,6 +182,11 @@ DenseBaProblem KeyframeGraph::buildProblem(const CameraModel& grid, std::vector<
   for (size_t n = 0; n < window_.size(); ++n) {
     index[window_[n]] = static_cast<int>(n);
     problem.keyframes.push_back(keyframes_[window_[n]].ba);
+  }
+  for (const GraphEdge& e : edges_) {
+    if (e.anchor < 0 || index[e.anchor] >= 0) continue;
+    index[e.anchor] = static_cast<int>(problem.keyframes.size());
+    problem.keyframes.push_back(keyframes_[e.anchor].ba);
   }
   for (const GraphEdge& e : edges_) {
     const int i = index[e.i];

@@ -25,6 +25,7 @@ struct KeyframeData {
   cv::Mat color;       // working resolution (released when the keyframe leaves the window)
   cv::Mat grey;        // CV_8UC1 working resolution (released likewise)
   cv::Mat structure;   // CV_32FC3 grid: structure tensor of grey (flow confidence)
+  cv::Mat gradients;   // CV_32FC2 working resolution: (gx, gy) of grey (refinement)
   cv::Mat right_grey;  // CV_8UC1 working resolution, stereo only
   /// Pose, BA-grid inverse depth (1/m, monocular: 1/scene unit) and the priors of the last BA.
   DenseBaKeyframe ba;
@@ -51,6 +52,8 @@ struct GraphEdge {
   cv::Mat target;  // CV_32FC2 grid: location in j's grid
   cv::Mat weight;  // CV_32FC2 grid: inverse variances (1/grid px^2)
   std::optional<SE3> T_i_other;
+  /// Loop edge: the id of its endpoint outside the window (the anchor), -1 otherwise.
+  int anchor = -1;
 };
 
 /// Tolerances for re-sending a keyframe after BA moved it.
@@ -68,7 +71,12 @@ struct ResendTolerance {
 class KeyframeGraph {
  public:
   /// Throws std::invalid_argument unless window_size >= 2.
-  explicit KeyframeGraph(int window_size);
+  /// Keyframes that left the window keep their grey image (for loop edges) until more than
+  /// max_kept_images of them have one. With departed_edges_as_anchors, the edges between a
+  /// keyframe that leaves and the window stay (the keyframe becomes their fixed anchor) until
+  /// their window endpoint leaves too: the window keeps the older keyframes' information.
+  explicit KeyframeGraph(int window_size, int max_kept_images = 0,
+                         bool departed_edges_as_anchors = false);
 
   /// Appends a keyframe (its id is set to the next id) to the window and returns it.
   KeyframeData& add(KeyframeData keyframe);
@@ -102,9 +110,15 @@ class KeyframeGraph {
   /// max_partners in all.
   std::vector<int> edgePartners(int id, const CameraModel& grid, double min_overlap,
                                 int max_partners, double min_depth_ratio) const;
+  /// The oldest keyframe outside the window that still has its image and that keyframe `id`
+  /// overlaps by more than min_overlap (by the current estimate), or -1: a loop partner.
+  int loopPartner(int id, const CameraModel& grid, double min_overlap,
+                  double min_depth_ratio) const;
 
-  /// The window as a dense BA problem: keyframes oldest first (so index 0 is the gauge),
-  /// edges among them. *ids receives the keyframe id of each problem index.
+  /// The window as a dense BA problem: keyframes oldest first (so index 0 is the gauge), then
+  /// the anchors of loop edges with fixed poses and their last inverse depths and marginal
+  /// variances as priors; the edges among them. *ids receives the keyframe id of each window
+  /// keyframe's problem index (anchors follow them and are never written back).
   DenseBaProblem buildProblem(const CameraModel& grid, std::vector<int>* ids) const;
   /// Copies optimised poses and inverse depths back.
   void writeBack(const DenseBaProblem& problem, const std::vector<int>& ids);
@@ -122,6 +136,9 @@ class KeyframeGraph {
 
  private:
   int window_size_;
+  int max_kept_images_;
+  bool departed_edges_as_anchors_;
+  std::vector<int> kept_images_;  // ids outside the window that keep their grey image
   std::vector<KeyframeData> keyframes_;
   std::vector<int> window_;  // ids, oldest first
   std::vector<GraphEdge> edges_;

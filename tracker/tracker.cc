@@ -9,6 +9,7 @@
 #include <opencv2/core/utility.hpp>
 
 #include "tracker/frontend_depth.h"
+#include "tracker/frontend_refine.h"
 #include "tracker/motion_only.h"
 
 namespace radslam {
@@ -39,78 +40,7 @@ Mat6 composeCovariance(const Mat6& cov_kf, const SE3& T_kf_frame, const Mat6& co
   return Ad * cov_kf * Ad.transpose() + cov_rel;
 }
 
-void check(bool ok, const std::string& what) {
-  if (!ok) throw std::invalid_argument("tracker parameter " + what);
-}
-
 }  // namespace
-
-TrackerMode parseTrackerMode(const std::string& name) {
-  if (name == "mono") return TrackerMode::kMono;
-  if (name == "rgbd") return TrackerMode::kRgbd;
-  if (name == "stereo") return TrackerMode::kStereo;
-  throw std::invalid_argument("tracker mode '" + name + "' is unknown (mono, rgbd, stereo)");
-}
-
-const char* trackerModeName(TrackerMode mode) {
-  switch (mode) {
-    case TrackerMode::kMono:
-      return "mono";
-    case TrackerMode::kRgbd:
-      return "rgbd";
-    case TrackerMode::kStereo:
-      return "stereo";
-  }
-  return "?";
-}
-
-void validateTrackerParams(const TrackerParams& p) {
-  parseTrackerMode(p.mode);
-  check(p.opencv_threads >= 0, "opencv_threads must be >= 0");
-  check(p.working_width >= 0, "working_width must be >= 0 (0 = input width)");
-  check(p.grid_cell >= 2 && p.grid_cell <= 32, "grid_cell must be in [2, 32]");
-  check(p.flow_preset == "ultrafast" || p.flow_preset == "fast" || p.flow_preset == "medium",
-        "flow_preset must be ultrafast, fast or medium");
-  check(p.flow_finest_scale >= 0 && p.flow_finest_scale <= 6,
-        "flow_finest_scale must be in [0, 6]");
-  check(p.flow_variational_iterations >= 0, "flow_variational_iterations must be >= 0");
-  check(p.flow_patch_size >= 4 && p.flow_patch_stride >= 1 &&
-            p.flow_patch_stride <= p.flow_patch_size,
-        "flow_patch_size >= 4 and 1 <= flow_patch_stride <= flow_patch_size");
-  check(p.conf_sigma0_px > 0, "conf_sigma0_px must be > 0");
-  check(p.conf_grad_floor > 0, "conf_grad_floor must be > 0");
-  check(p.conf_fb_gain >= 0 && p.conf_grad_gain >= 0, "conf_fb_gain, conf_grad_gain must be >= 0");
-  check(p.conf_fb_max_px > 0 && p.conf_photo_max > 0 && p.conf_photo_scale > 0,
-        "conf_fb_max_px, conf_photo_max, conf_photo_scale must be > 0");
-  check(p.keyframe_flow_px > 0, "keyframe_flow_px must be > 0");
-  check(p.keyframe_min_valid >= 0 && p.keyframe_min_valid < 1, "keyframe_min_valid in [0, 1)");
-  check(p.window_size >= 2, "window_size must be >= 2");
-  check(p.max_edge_partners >= 1, "max_edge_partners must be >= 1");
-  check(p.min_edge_overlap >= 0 && p.min_edge_overlap <= 1, "min_edge_overlap in [0, 1]");
-  check(p.flow_ba_rounds >= 1, "flow_ba_rounds must be >= 1");
-  check(p.ba_iterations >= 1 && p.final_ba_iterations >= 0,
-        "ba_iterations >= 1, final_ba_iterations >= 0");
-  check(p.huber_threshold >= 0, "huber_threshold must be >= 0 (0 = none)");
-  check(p.min_depth_ratio > 0 && p.min_depth_ratio < 1, "min_depth_ratio in (0, 1)");
-  check(p.mono_gauge == "first_pose" || p.mono_gauge == "first_pose_and_scale" ||
-            p.mono_gauge == "first_two_poses",
-        "mono_gauge must be first_pose, first_pose_and_scale or first_two_poses");
-  check(p.mono_prior_mean == "fixed" || p.mono_prior_mean == "median",
-        "mono_prior_mean must be fixed or median");
-  check(p.init_inv_depth > 0, "init_inv_depth must be > 0");
-  check(p.mono_prior_rel_sigma > 0, "mono_prior_rel_sigma must be > 0");
-  check(p.depth_sigma_a > 0 && p.depth_sigma_b >= 0, "depth_sigma_a > 0, depth_sigma_b >= 0");
-  check(p.depth_min_m > 0 && p.depth_max_m > p.depth_min_m, "0 < depth_min_m < depth_max_m");
-  check(p.depth_min_cell_fraction > 0 && p.depth_min_cell_fraction <= 1,
-        "depth_min_cell_fraction in (0, 1]");
-  check(p.motion_iterations >= 1, "motion_iterations must be >= 1");
-  check(p.lost_min_valid >= 0 && p.lost_min_valid < 1, "lost_min_valid in [0, 1)");
-  check(p.lost_reinit_frames >= 1, "lost_reinit_frames must be >= 1");
-  check(p.upsample_sigma_range > 0, "upsample_sigma_range must be > 0");
-  check(p.resend_rotation_deg >= 0 && p.resend_translation_rel >= 0 && p.resend_inv_depth_rel >= 0,
-        "resend tolerances must be >= 0");
-  check(p.resend_min_keyframes >= 1, "resend_min_keyframes must be >= 1");
-}
 
 struct Tracker::Impl {
   Impl(const TrackerParams& p, TrackerMode mode);
@@ -137,8 +67,16 @@ struct Tracker::Impl {
   }
   PoseStamped poseMessage(const FrameRecord& r) const;
 
+  /// Grid correspondences a -> b from the flows (confidence from both), refined per cell.
+  Correspondences correspond(const cv::Mat& grey_a, const cv::Mat& gradients_a,
+                             const cv::Mat& structure_a, const cv::Mat& grey_b,
+                             const cv::Mat& flow_ab, const cv::Mat& flow_ba) const;
+
   // Keyframe pairs, BA and output.
   void measurePair(int a, int b);
+  /// Loop edges between window keyframe id and anchor a; false (no edge) when too few pixels
+  /// are tracked.
+  bool measureLoop(int id, int a);
   void measureStereo(int id);
   void setPriors();
   bool runBa(int iterations);
@@ -154,6 +92,8 @@ struct Tracker::Impl {
   TrackerParams p;
   TrackerMode mode;
   FlowOptions flow_options;
+  RefineOptions refine_options;
+  KeyframePolicy keyframe_policy;
   DepthUpsamplingOptions upsampling;
   ResendTolerance tolerance;
   DenseBaOptions ba_options;
@@ -166,6 +106,14 @@ struct Tracker::Impl {
   std::vector<FrameRecord> frames;
   double baseline_m = 0;  // stereo
   bool ba_ran = false;
+  /// Monocular frames tracked before the first BA, against keyframe 0's constant depths: their
+  /// correspondences are kept and they are aligned again once BA has given keyframe 0 depths.
+  struct InitFrame {
+    size_t record = 0;  // index into frames
+    cv::Mat target, weight;
+  };
+  std::vector<InitFrame> init_frames;
+  void realignInitFrames();
   int lost_streak = 0;
   TrackerStats stats;
 };
@@ -191,7 +139,8 @@ Tracker::Impl::Impl(const TrackerParams& params, TrackerMode m)
         return f;
       }()),
       flow(flow_options),
-      graph(params.window_size),
+      graph(params.window_size, params.loop_min_overlap <= 1 ? params.loop_max_kept_images : 0,
+            params.keep_departed_edges),
       aligner([&] {
         MotionOnlyOptions m;
         m.max_iterations = params.motion_iterations;
@@ -200,6 +149,12 @@ Tracker::Impl::Impl(const TrackerParams& params, TrackerMode m)
         return m;
       }()) {
   upsampling.sigma_range = p.upsample_sigma_range;
+  keyframe_policy.flow_px = p.keyframe_flow_px;
+  keyframe_policy.rotation_px = p.keyframe_rotation_px;
+  keyframe_policy.min_valid_fraction = p.keyframe_min_valid;
+  refine_options.iterations = p.refine_iterations;
+  refine_options.max_shift_px = p.refine_max_shift_px;
+  refine_options.brightness_offset = p.refine_brightness_offset;
   tolerance.rotation_rad = p.resend_rotation_deg * M_PI / 180.0;
   tolerance.translation_rel = p.resend_translation_rel;
   tolerance.inv_depth_rel = p.resend_inv_depth_rel;
@@ -239,8 +194,12 @@ TrackerOutput Tracker::process(const Frame& frame) {
   }
   std::unique_ptr<ImagePreparer> preparer;
   if (!s.preparer) {
-    preparer =
-        std::make_unique<ImagePreparer>(frame.camera, params_.working_width, params_.grid_cell);
+    const int width = params_.working_pixels <= 0
+                          ? 0
+                          : static_cast<int>(std::lround(std::sqrt(
+                                params_.working_pixels * static_cast<double>(frame.camera.width) /
+                                frame.camera.height)));
+    preparer = std::make_unique<ImagePreparer>(frame.camera, width, params_.grid_cell);
   } else if (!s.preparer->matches(frame.camera)) {
     const CameraModel& c = s.preparer->input();
     throw std::invalid_argument(where + "camera differs from the first frame's (" +
@@ -327,7 +286,8 @@ KeyframeData Tracker::Impl::newKeyframeData(const Frame& frame, const PreparedIm
   kf.header = frame.header;
   kf.color = preparer->prepareColor(frame.color);
   kf.grey = image.grey;
-  kf.structure = cellStructureTensor(image.grey, g.cell);
+  kf.gradients = imageGradients(image.grey);
+  kf.structure = cellStructureTensor(kf.gradients, g.cell);
   kf.right_grey = image.right_grey;
   kf.ba.T_world_cam = T_world_cam;
   if (mode == TrackerMode::kRgbd) {
@@ -361,17 +321,18 @@ void Tracker::Impl::track(const Frame& frame, const PreparedImage& image, Tracke
   TrackedFlow tracked;
   tracked.forward = forward;
   tracked.backward = backward;
-  tracked.correspondences = flowToCorrespondences(ref.grey, image.grey, forward, backward,
-                                                  ref.structure, g, flow_options);
+  tracked.correspondences =
+      correspond(ref.grey, ref.gradients, ref.structure, image.grey, forward, backward);
   const Correspondences& c = tracked.correspondences;
   stats.flow_ms += msSince(t_flow);
-  const FlowMotion motion = measureFlowMotion(c.target, c.weight);
   stats.valid_fraction = c.valid_fraction;
-  stats.mean_flow_px = motion.mean_flow_px;
 
   const MotionOnlyResult aligned =
       aligner.align(g.grid, {ref.ba}, {MotionOnlyEdge{0, c.target, c.weight}}, T_pred);
-  const bool lost = !aligned.ok || c.valid_fraction < p.lost_min_valid;
+  cv::Scalar mean, stddev;
+  cv::meanStdDev(image.grey, mean, stddev);
+  const bool lost =
+      !aligned.ok || c.valid_fraction < p.lost_min_valid || stddev[0] < p.lost_min_contrast;
 
   if (lost) {
     ++lost_streak;
@@ -395,7 +356,17 @@ void Tracker::Impl::track(const Frame& frame, const PreparedImage& image, Tracke
   }
   lost_streak = 0;
 
-  if (isNewKeyframe(motion, p.keyframe_flow_px, p.keyframe_min_valid)) {
+  const Mat3 R_frame_kf = (aligned.T_world_frame.inverse() * ref.ba.T_world_cam).rotation();
+  const FlowMotion motion = measureFlowMotion(c.target, c.weight, g.grid, R_frame_kf);
+  stats.mean_flow_px = motion.mean_flow_px;
+  stats.mean_parallax_px = motion.mean_parallax_px;
+  KeyframePolicy policy = keyframe_policy;
+  if (mode == TrackerMode::kMono && graph.windowIds().size() == 1) {
+    // The second monocular keyframe starts the map: its BA needs a baseline, and the poses
+    // before it come from constant depths, so wait for more flow than later keyframes.
+    policy.flow_px = p.mono_init_flow_px;
+  }
+  if (isNewKeyframe(motion, policy)) {
     makeKeyframe(frame, image, aligned.T_world_frame, &tracked, false, out);
     return;
   }
@@ -407,7 +378,24 @@ void Tracker::Impl::track(const Frame& frame, const PreparedImage& image, Tracke
   r.cov_rel = aligned.covariance;
   r.state = trackingState();
   frames.push_back(r);
+  if (mode == TrackerMode::kMono && !ba_ran) {
+    init_frames.push_back(InitFrame{frames.size() - 1, c.target, c.weight});
+  }
   out->pose = poseMessage(r);
+}
+
+void Tracker::Impl::realignInitFrames() {
+  const GridGeometry& g = preparer->geometry();
+  for (const InitFrame& f : init_frames) {
+    FrameRecord& r = frames[f.record];
+    const KeyframeData& ref = graph.keyframe(r.ref_kf);
+    const MotionOnlyResult aligned =
+        aligner.align(g.grid, {ref.ba}, {MotionOnlyEdge{0, f.target, f.weight}}, framePose(r));
+    if (!aligned.ok) continue;
+    r.T_kf_frame = ref.ba.T_world_cam.inverse() * aligned.T_world_frame;
+    r.cov_rel = aligned.covariance;
+  }
+  init_frames.clear();
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -476,15 +464,26 @@ void Tracker::Impl::makeKeyframe(const Frame& frame, const PreparedImage& image,
         graph.edgePartners(id, g.grid, p.min_edge_overlap, p.max_edge_partners, p.min_depth_ratio);
   }
   const bool can_ba = graph.windowIds().size() >= 2 || mode == TrackerMode::kStereo;
+  if (!partners.empty() && p.loop_min_overlap <= 1) {
+    const auto t_loop = Clock::now();
+    const int anchor = graph.loopPartner(id, g.grid, p.loop_min_overlap, p.min_depth_ratio);
+    if (anchor >= 0 && measureLoop(id, anchor)) ++stats.loop_edges;
+    stats.flow_ms += msSince(t_loop);
+  }
   for (int round = 0; round < p.flow_ba_rounds; ++round) {
     const auto t_flow = Clock::now();
     for (int m : partners) {
+      // Later rounds re-measure only the pair with the previous keyframe, whose first measure
+      // came from per-frame tracking (warm-started by a motion model, not by BA): on the
+      // sequences measured, re-measuring the other pairs changed the result by less than the
+      // run-to-run spread and cost a third of the keyframe time.
+      if (round > 0 && m != partners.front()) continue;
       if (round == 0 && tracked && !tracked->backward.empty() && m == partners.front()) {
         // The frame's own flows against its reference keyframe are this pair's first measure.
         const KeyframeData& k = graph.keyframe(id);
         const KeyframeData& ref = graph.keyframe(m);
-        const Correspondences back = flowToCorrespondences(
-            k.grey, ref.grey, tracked->backward, tracked->forward, k.structure, g, flow_options);
+        const Correspondences back = correspond(k.grey, k.gradients, k.structure, ref.grey,
+                                                tracked->backward, tracked->forward);
         graph.setEdge(GraphEdge{m, id, tracked->correspondences.target,
                                 tracked->correspondences.weight, std::nullopt});
         graph.setEdge(GraphEdge{id, m, back.target, back.weight, std::nullopt});
@@ -497,6 +496,7 @@ void Tracker::Impl::makeKeyframe(const Frame& frame, const PreparedImage& image,
     if (can_ba) runBa(p.ba_iterations);
   }
   if (can_ba && ba_ran) updateMarginals();
+  if (ba_ran && !init_frames.empty()) realignInitFrames();
   if (!ba_ran || graph.keyframe(id).inv_depth_var.empty()) {
     // No BA yet (monocular keyframe 0, RGB-D keyframe 0): the prior is all that is known.
     setPriors();
@@ -515,6 +515,18 @@ void Tracker::Impl::makeKeyframe(const Frame& frame, const PreparedImage& image,
   out->pose = poseMessage(r);
 }
 
+Correspondences Tracker::Impl::correspond(const cv::Mat& grey_a, const cv::Mat& gradients_a,
+                                          const cv::Mat& structure_a, const cv::Mat& grey_b,
+                                          const cv::Mat& flow_ab, const cv::Mat& flow_ba) const {
+  const GridGeometry& g = preparer->geometry();
+  Correspondences c =
+      flowToCorrespondences(grey_a, grey_b, flow_ab, flow_ba, structure_a, g, flow_options);
+  if (p.refine_iterations > 0) {
+    refineTargets(grey_a, gradients_a, grey_b, g.cell, refine_options, &c.target, &c.weight);
+  }
+  return c;
+}
+
 void Tracker::Impl::measurePair(int a, int b) {
   const GridGeometry& g = preparer->geometry();
   const KeyframeData& ka = graph.keyframe(a);
@@ -525,12 +537,32 @@ void Tracker::Impl::measurePair(int a, int b) {
       predictedFlow(reprojectKeyframe(g.grid, kb.ba, ka.ba.T_world_cam, p.min_depth_ratio), g);
   const cv::Mat f_ab = flow.compute(ka.grey, kb.grey, init_ab);
   const cv::Mat f_ba = flow.compute(kb.grey, ka.grey, init_ba);
-  Correspondences c_ab =
-      flowToCorrespondences(ka.grey, kb.grey, f_ab, f_ba, ka.structure, g, flow_options);
-  Correspondences c_ba =
-      flowToCorrespondences(kb.grey, ka.grey, f_ba, f_ab, kb.structure, g, flow_options);
+  Correspondences c_ab = correspond(ka.grey, ka.gradients, ka.structure, kb.grey, f_ab, f_ba);
+  Correspondences c_ba = correspond(kb.grey, kb.gradients, kb.structure, ka.grey, f_ba, f_ab);
   graph.setEdge(GraphEdge{a, b, c_ab.target, c_ab.weight, std::nullopt});
   graph.setEdge(GraphEdge{b, a, c_ba.target, c_ba.weight, std::nullopt});
+}
+
+bool Tracker::Impl::measureLoop(int id, int a) {
+  const GridGeometry& g = preparer->geometry();
+  const KeyframeData& k = graph.keyframe(id);
+  const KeyframeData& ka = graph.keyframe(a);
+  const cv::Mat init_ka =
+      predictedFlow(reprojectKeyframe(g.grid, ka.ba, k.ba.T_world_cam, p.min_depth_ratio), g);
+  const cv::Mat init_k =
+      predictedFlow(reprojectKeyframe(g.grid, k.ba, ka.ba.T_world_cam, p.min_depth_ratio), g);
+  const cv::Mat f_ak = flow.compute(ka.grey, k.grey, init_ka);
+  const cv::Mat f_ka = flow.compute(k.grey, ka.grey, init_k);
+  // The anchor keeps only its grey image and structure tensor: gradients again.
+  const Correspondences c_ak =
+      correspond(ka.grey, imageGradients(ka.grey), ka.structure, k.grey, f_ak, f_ka);
+  const Correspondences c_ka = correspond(k.grey, k.gradients, k.structure, ka.grey, f_ka, f_ak);
+  if (c_ak.valid_fraction < p.loop_min_valid || c_ka.valid_fraction < p.loop_min_valid) {
+    return false;
+  }
+  graph.setEdge(GraphEdge{a, id, c_ak.target, c_ak.weight, std::nullopt, a});
+  graph.setEdge(GraphEdge{id, a, c_ka.target, c_ka.weight, std::nullopt, a});
+  return true;
 }
 
 void Tracker::Impl::measureStereo(int id) {
@@ -547,8 +579,7 @@ void Tracker::Impl::measureStereo(int id) {
   const cv::Mat f_lr = flow.compute(k.grey, k.right_grey, init);
   const cv::Mat f_rl =
       flow.compute(k.right_grey, k.grey, init.empty() ? cv::Mat() : cv::Mat(-init));
-  const Correspondences c =
-      flowToCorrespondences(k.grey, k.right_grey, f_lr, f_rl, k.structure, g, flow_options);
+  const Correspondences c = correspond(k.grey, k.gradients, k.structure, k.right_grey, f_lr, f_rl);
   graph.setEdge(GraphEdge{id, -1, c.target, c.weight, T_left_right});
 }
 

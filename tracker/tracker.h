@@ -6,7 +6,8 @@
 /// (warm-started from the pose predicted by constant velocity), motion-only alignment gives the
 /// frame's pose and covariance. When the mean flow to the last keyframe exceeds
 /// keyframe_flow_px (BA grid px) the frame becomes a keyframe: edges to its predecessor and to
-/// overlapping window keyframes, then flow_ba_rounds alternations of (flow warm-started from
+/// overlapping window keyframes (and a loop edge to an older overlapping keyframe outside the
+/// window), then flow_ba_rounds alternations of (flow warm-started from
 /// BA's prediction, BA), then exact marginals; new and changed keyframes are returned.
 ///
 /// Frames keep their pose relative to their reference keyframe, so finish() re-emits every
@@ -48,16 +49,19 @@ struct TrackerParams {
   int opencv_threads = 1;     // OpenCV worker threads (1: one process per core)
 
   // Front end.
-  int working_width = 512;  // px; the height keeps the aspect ratio (multiple of grid_cell)
-  int grid_cell = 8;        // working px per BA grid px
+  // Working image area, px (0 = input size): the size keeps the input's aspect ratio (a
+  // multiple of grid_cell each way), so wide images (KITTI) keep as many BA grid rows as
+  // their area allows. 384 x 288 for 4:3 input.
+  int working_pixels = 110592;
+  int grid_cell = 8;                 // working px per BA grid px
   std::string flow_preset = "fast";  // DIS preset: ultrafast | fast | medium
-  int flow_finest_scale = 2;
+  int flow_finest_scale = 1;         // DIS finest pyramid level (2 biased the flow at 384 px width)
   int flow_variational_iterations = 0;
   int flow_patch_size = 8;
   int flow_patch_stride = 4;
   bool flow_spatial_propagation = true;
-  bool frame_backward_flow = true;  // forward-backward check on per-frame flow (one more flow)
-  double conf_sigma0_px = 0.05;     // grid px (see tracker/frontend_flow.h)
+  bool frame_backward_flow = false;  // forward-backward check on per-frame flow (one more flow)
+  double conf_sigma0_px = 0.05;      // grid px (see tracker/frontend_flow.h)
   double conf_fb_gain = 1.0;
   double conf_fb_max_px = 0.75;     // grid px
   double conf_photo_scale = 100.0;  // grey levels
@@ -65,15 +69,32 @@ struct TrackerParams {
   double conf_grad_gain = 0.2;      // (grey/px)^2 grid px^2
   double conf_grad_floor = 1.0;     // (grey/px)^2
 
+  // Per-cell Lucas-Kanade refinement of the flow targets (tracker/frontend_refine.h).
+  int refine_iterations = 4;             // 0 = off
+  double refine_max_shift_px = 2.0;      // working px from the DIS target; further: weight 0
+  bool refine_brightness_offset = true;  // per-cell offset (auto-exposure)
+
   // Keyframes and window.
-  double keyframe_flow_px = 2.5;    // grid px, mean flow to the last keyframe
-  double keyframe_min_valid = 0.4;  // fraction of tracked pixels below which a keyframe is made
-  int window_size = 8;              // keyframes in dense BA
-  int max_edge_partners = 3;        // earlier keyframes a new keyframe gets edges with
-  double min_edge_overlap = 0.5;    // fraction of pixels predicted inside the other image
-  int flow_ba_rounds = 2;           // (flow, BA) alternations per new keyframe
-  int ba_iterations = 4;            // Levenberg-Marquardt iterations per BA call
-  int final_ba_iterations = 8;      // in finish()
+  double keyframe_flow_px = 2.5;      // grid px, mean parallax to the last keyframe
+  double keyframe_rotation_px = 8.0;  // grid px, mean flow of the rotation alone
+  double keyframe_min_valid = 0.4;    // fraction of tracked pixels below which a keyframe is made
+  int window_size = 8;                // keyframes in dense BA
+  int max_edge_partners = 3;          // earlier keyframes a new keyframe gets edges with
+  double min_edge_overlap = 0.5;      // fraction of pixels predicted inside the other image
+  int flow_ba_rounds = 1;             // (flow, BA) alternations per new keyframe
+  // Loop edges: a new keyframe also gets an edge pair with the oldest keyframe outside the
+  // window that it overlaps by more than loop_min_overlap (fixed pose, depths held by their
+  // marginals), when at least loop_min_valid of the pixels are tracked both ways. Bounds drift
+  // when the camera returns to a view it has seen.
+  double loop_min_overlap = 0.7;   // fraction of grid pixels; > 1 disables loop edges
+  double loop_min_valid = 0.5;     // fraction of grid pixels
+  int loop_max_kept_images = 200;  // keyframes outside the window that keep their grey image
+  // Edges between a keyframe leaving the window and the window stay, with the departed
+  // keyframe fixed (KeyframeGraph): a longer memory of scale and rotation at the cost of BA
+  // time for its depths.
+  bool keep_departed_edges = false;
+  int ba_iterations = 4;        // Levenberg-Marquardt iterations per BA call
+  int final_ba_iterations = 8;  // in finish()
 
   // Dense BA.
   double huber_threshold = 2.4477;  // whitened residual norm
@@ -81,6 +102,7 @@ struct TrackerParams {
   std::string mono_gauge = "first_pose";  // first_pose | first_pose_and_scale | first_two_poses
   std::string mono_prior_mean = "fixed";  // fixed (init_inv_depth) | median (of the keyframe)
   double init_inv_depth = 1.0;            // monocular keyframe 0, 1/scene unit
+  double mono_init_flow_px = 7.5;         // grid px of mean flow before the second keyframe
   double mono_prior_rel_sigma = 1.0;      // weak inverse-depth prior, relative to the median
 
   // RGB-D: sensor depth on the grid (median of the valid pixels of each cell) as an inverse-depth
@@ -96,7 +118,10 @@ struct TrackerParams {
   // Per-frame alignment.
   int motion_iterations = 10;
   double lost_min_valid = 0.15;  // fraction of valid correspondences below which a frame is lost
-  int lost_reinit_frames = 5;    // consecutive lost frames before re-initialising
+  // Grey-level standard deviation below which a frame is lost without measuring flow (covered
+  // lens, blank or saturated image: without the backward flow check nothing else rejects it).
+  double lost_min_contrast = 2.0;
+  int lost_reinit_frames = 5;  // consecutive lost frames before re-initialising
 
   // Keyframe output (KEYFRAME messages at working resolution).
   double upsample_sigma_range = 12.0;  // grey levels
@@ -106,23 +131,26 @@ struct TrackerParams {
   int resend_min_keyframes = 3;  // new keyframes between two re-sends of one keyframe
 };
 
-/// Throws std::invalid_argument naming the first parameter out of range.
+/// Throws std::invalid_argument naming the first parameter out of range (implemented beside
+/// the YAML loader in tracker/tracker_node.cc).
 void validateTrackerParams(const TrackerParams& params);
 
 /// Figures for STATUS and the benchmark.
 struct TrackerStats {
-  int frames = 0;             // frames processed (with a pose)
-  int keyframes = 0;          // created so far
-  int window_size = 0;        // keyframes in the BA window
-  int edges = 0;              // flow edges in the window
-  double ba_cost = 0;         // final cost of the last BA call
-  int ba_iterations = 0;      // of the last BA call
-  double ba_ms = 0;           // BA time of this frame (all rounds), ms
-  double flow_ms = 0;         // flow + confidence time of this frame, ms
-  double frame_ms = 0;        // whole process() call, ms
-  double valid_fraction = 0;  // tracked pixels of this frame
-  double mean_flow_px = 0;    // to the last keyframe, grid px
-  int lost_frames = 0;        // frames reported LOST so far
+  int frames = 0;               // frames processed (with a pose)
+  int keyframes = 0;            // created so far
+  int window_size = 0;          // keyframes in the BA window
+  int edges = 0;                // flow edges in the window
+  double ba_cost = 0;           // final cost of the last BA call
+  int ba_iterations = 0;        // of the last BA call
+  double ba_ms = 0;             // BA time of this frame (all rounds), ms
+  double flow_ms = 0;           // flow + confidence time of this frame, ms
+  double frame_ms = 0;          // whole process() call, ms
+  double valid_fraction = 0;    // tracked pixels of this frame
+  double mean_flow_px = 0;      // to the last keyframe, grid px
+  double mean_parallax_px = 0;  // of it, not explained by the rotation, grid px
+  int lost_frames = 0;          // frames reported LOST so far
+  int loop_edges = 0;           // loop edge pairs made so far
 };
 
 struct TrackerOutput {

@@ -3,6 +3,7 @@
 #include <chrono>
 #include <iostream>
 #include <stdexcept>
+#include <thread>
 
 #include "common/cli.h"
 #include "common/params.h"
@@ -16,10 +17,91 @@ double secondsSince(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
 }
 
+constexpr int kKeyframeGapMs = 20;  // between keyframes of one burst (~200 MB/s at most)
+
 // Warn about the first few of a kind, then every 100th, so a bad stream cannot flood the log.
 bool shouldWarn(int64_t count) { return count <= 5 || count % 100 == 0; }
 
+void check(bool ok, const std::string& what) {
+  if (!ok) throw std::invalid_argument("tracker parameter " + what);
+}
+
 }  // namespace
+
+TrackerMode parseTrackerMode(const std::string& name) {
+  if (name == "mono") return TrackerMode::kMono;
+  if (name == "rgbd") return TrackerMode::kRgbd;
+  if (name == "stereo") return TrackerMode::kStereo;
+  throw std::invalid_argument("tracker mode '" + name + "' is unknown (mono, rgbd, stereo)");
+}
+
+const char* trackerModeName(TrackerMode mode) {
+  switch (mode) {
+    case TrackerMode::kMono:
+      return "mono";
+    case TrackerMode::kRgbd:
+      return "rgbd";
+    case TrackerMode::kStereo:
+      return "stereo";
+  }
+  return "?";
+}
+
+void validateTrackerParams(const TrackerParams& p) {
+  parseTrackerMode(p.mode);
+  check(p.opencv_threads >= 0, "opencv_threads must be >= 0");
+  check(p.working_pixels >= 0, "working_pixels must be >= 0 (0 = input size)");
+  check(p.grid_cell >= 2 && p.grid_cell <= 32, "grid_cell must be in [2, 32]");
+  check(p.flow_preset == "ultrafast" || p.flow_preset == "fast" || p.flow_preset == "medium",
+        "flow_preset must be ultrafast, fast or medium");
+  check(p.flow_finest_scale >= 0 && p.flow_finest_scale <= 6,
+        "flow_finest_scale must be in [0, 6]");
+  check(p.flow_variational_iterations >= 0, "flow_variational_iterations must be >= 0");
+  check(p.flow_patch_size >= 4 && p.flow_patch_stride >= 1 &&
+            p.flow_patch_stride <= p.flow_patch_size,
+        "flow_patch_size >= 4 and 1 <= flow_patch_stride <= flow_patch_size");
+  check(p.conf_sigma0_px > 0, "conf_sigma0_px must be > 0");
+  check(p.conf_grad_floor > 0, "conf_grad_floor must be > 0");
+  check(p.conf_fb_gain >= 0 && p.conf_grad_gain >= 0, "conf_fb_gain, conf_grad_gain must be >= 0");
+  check(p.conf_fb_max_px > 0 && p.conf_photo_max > 0 && p.conf_photo_scale > 0,
+        "conf_fb_max_px, conf_photo_max, conf_photo_scale must be > 0");
+  check(p.refine_iterations >= 0 && p.refine_max_shift_px > 0,
+        "refine_iterations >= 0, refine_max_shift_px > 0");
+  check(p.keyframe_flow_px > 0, "keyframe_flow_px must be > 0");
+  check(p.keyframe_rotation_px > 0, "keyframe_rotation_px must be > 0");
+  check(p.keyframe_min_valid >= 0 && p.keyframe_min_valid < 1, "keyframe_min_valid in [0, 1)");
+  check(p.window_size >= 2, "window_size must be >= 2");
+  check(p.max_edge_partners >= 1, "max_edge_partners must be >= 1");
+  check(p.min_edge_overlap >= 0 && p.min_edge_overlap <= 1, "min_edge_overlap in [0, 1]");
+  check(p.flow_ba_rounds >= 1, "flow_ba_rounds must be >= 1");
+  check(p.loop_min_overlap >= 0, "loop_min_overlap must be >= 0 (> 1 disables loop edges)");
+  check(p.loop_min_valid >= 0 && p.loop_min_valid <= 1, "loop_min_valid in [0, 1]");
+  check(p.loop_max_kept_images >= 0, "loop_max_kept_images must be >= 0");
+  check(p.ba_iterations >= 1 && p.final_ba_iterations >= 0,
+        "ba_iterations >= 1, final_ba_iterations >= 0");
+  check(p.huber_threshold >= 0, "huber_threshold must be >= 0 (0 = none)");
+  check(p.min_depth_ratio > 0 && p.min_depth_ratio < 1, "min_depth_ratio in (0, 1)");
+  check(p.mono_gauge == "first_pose" || p.mono_gauge == "first_pose_and_scale" ||
+            p.mono_gauge == "first_two_poses",
+        "mono_gauge must be first_pose, first_pose_and_scale or first_two_poses");
+  check(p.mono_prior_mean == "fixed" || p.mono_prior_mean == "median",
+        "mono_prior_mean must be fixed or median");
+  check(p.init_inv_depth > 0, "init_inv_depth must be > 0");
+  check(p.mono_init_flow_px > 0, "mono_init_flow_px must be > 0");
+  check(p.mono_prior_rel_sigma > 0, "mono_prior_rel_sigma must be > 0");
+  check(p.depth_sigma_a > 0 && p.depth_sigma_b >= 0, "depth_sigma_a > 0, depth_sigma_b >= 0");
+  check(p.depth_min_m > 0 && p.depth_max_m > p.depth_min_m, "0 < depth_min_m < depth_max_m");
+  check(p.depth_min_cell_fraction > 0 && p.depth_min_cell_fraction <= 1,
+        "depth_min_cell_fraction in (0, 1]");
+  check(p.motion_iterations >= 1, "motion_iterations must be >= 1");
+  check(p.lost_min_valid >= 0 && p.lost_min_valid < 1, "lost_min_valid in [0, 1)");
+  check(p.lost_min_contrast >= 0, "lost_min_contrast must be >= 0");
+  check(p.lost_reinit_frames >= 1, "lost_reinit_frames must be >= 1");
+  check(p.upsample_sigma_range > 0, "upsample_sigma_range must be > 0");
+  check(p.resend_rotation_deg >= 0 && p.resend_translation_rel >= 0 && p.resend_inv_depth_rel >= 0,
+        "resend tolerances must be >= 0");
+  check(p.resend_min_keyframes >= 1, "resend_min_keyframes must be >= 1");
+}
 
 TrackerParams loadTrackerParams(const std::string& yaml_path,
                                 const std::vector<std::string>& overrides, std::string* dump,
@@ -29,7 +111,7 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   for (const std::string& o : overrides) r.addOverride(o);
   r.get("mode", &p.mode);
   r.get("opencv_threads", &p.opencv_threads);
-  r.get("working_width", &p.working_width);
+  r.get("working_pixels", &p.working_pixels);
   r.get("grid_cell", &p.grid_cell);
   r.get("flow_preset", &p.flow_preset);
   r.get("flow_finest_scale", &p.flow_finest_scale);
@@ -45,12 +127,20 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("conf_photo_max", &p.conf_photo_max);
   r.get("conf_grad_gain", &p.conf_grad_gain);
   r.get("conf_grad_floor", &p.conf_grad_floor);
+  r.get("refine_iterations", &p.refine_iterations);
+  r.get("refine_max_shift_px", &p.refine_max_shift_px);
+  r.get("refine_brightness_offset", &p.refine_brightness_offset);
   r.get("keyframe_flow_px", &p.keyframe_flow_px);
+  r.get("keyframe_rotation_px", &p.keyframe_rotation_px);
   r.get("keyframe_min_valid", &p.keyframe_min_valid);
   r.get("window_size", &p.window_size);
   r.get("max_edge_partners", &p.max_edge_partners);
   r.get("min_edge_overlap", &p.min_edge_overlap);
   r.get("flow_ba_rounds", &p.flow_ba_rounds);
+  r.get("loop_min_overlap", &p.loop_min_overlap);
+  r.get("loop_min_valid", &p.loop_min_valid);
+  r.get("loop_max_kept_images", &p.loop_max_kept_images);
+  r.get("keep_departed_edges", &p.keep_departed_edges);
   r.get("ba_iterations", &p.ba_iterations);
   r.get("final_ba_iterations", &p.final_ba_iterations);
   r.get("huber_threshold", &p.huber_threshold);
@@ -58,6 +148,7 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("mono_gauge", &p.mono_gauge);
   r.get("mono_prior_mean", &p.mono_prior_mean);
   r.get("init_inv_depth", &p.init_inv_depth);
+  r.get("mono_init_flow_px", &p.mono_init_flow_px);
   r.get("mono_prior_rel_sigma", &p.mono_prior_rel_sigma);
   r.get("depth_sigma_a", &p.depth_sigma_a);
   r.get("depth_sigma_b", &p.depth_sigma_b);
@@ -67,6 +158,7 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("depth_min_cell_fraction", &p.depth_min_cell_fraction);
   r.get("motion_iterations", &p.motion_iterations);
   r.get("lost_min_valid", &p.lost_min_valid);
+  r.get("lost_min_contrast", &p.lost_min_contrast);
   r.get("lost_reinit_frames", &p.lost_reinit_frames);
   r.get("upsample_sigma_range", &p.upsample_sigma_range);
   r.get("resend_rotation_deg", &p.resend_rotation_deg);
@@ -152,7 +244,12 @@ void TrackerNode::publish(const TrackerOutput& output) {
   last_stats_ = output.stats;
   try {
     if (output.has_pose) bus_->publish(channel::kPose, output.pose);
-    for (const Keyframe& kf : output.keyframes) bus_->publish(channel::kKeyframe, kf);
+    for (size_t k = 0; k < output.keyframes.size(); ++k) {
+      // A keyframe is megabytes of UDP fragments: pace bursts so that receivers keep up (a
+      // receive buffer overrun loses whole messages).
+      if (k > 0) std::this_thread::sleep_for(std::chrono::milliseconds(kKeyframeGapMs));
+      bus_->publish(channel::kKeyframe, output.keyframes[k]);
+    }
     for (const PoseStamped& pose : output.refreshed_poses) bus_->publish(channel::kPose, pose);
   } catch (const std::invalid_argument& e) {
     reporter_.setError(e.what());
@@ -206,6 +303,9 @@ void TrackerNode::finish() {
             << " skipped, " << output.stats.lost_frames << " lost; re-sent "
             << output.keyframes.size() << " keyframes and " << output.refreshed_poses.size()
             << " poses\n";
+  publishStatus(ProcessState::kDone);
+  // Once more after a moment: the first may be lost behind the final burst.
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));
   publishStatus(ProcessState::kDone);
 }
 

@@ -1,5 +1,6 @@
-// The tracker process's bus wiring: CAMERA in; POSE, KEYFRAME and STATUS out; CONTROL for stop
-// and reset. The core (tracker/tracker.h) knows nothing of the bus.
+// The tracker process's parameters (YAML loading and validation) and bus wiring: CAMERA in;
+// POSE, KEYFRAME and STATUS out; CONTROL for stop and reset. The core (tracker/tracker.h)
+// knows nothing of the bus.
 #pragma once
 
 #include <cstdint>

@@ -11,6 +11,7 @@
 #include "common/camera.h"
 #include "common/synthetic.h"
 #include "tracker/frontend_flow.h"
+#include "tracker/frontend_refine.h"
 
 namespace radslam {
 namespace {
@@ -121,14 +122,63 @@ TEST(Keyframes, SelectionTriggersAtTheThreshold) {
   EXPECT_NEAR(below.mean_flow_px, 2.4, 1e-5);
   EXPECT_NEAR(above.mean_flow_px, 2.6, 1e-5);
   EXPECT_DOUBLE_EQ(below.valid_fraction, 1.0);
-  EXPECT_FALSE(isNewKeyframe(below, 2.5, 0.3));
-  EXPECT_TRUE(isNewKeyframe(above, 2.5, 0.3));
+  KeyframePolicy policy;
+  policy.flow_px = 2.5;
+  policy.min_valid_fraction = 0.3;
+  EXPECT_FALSE(isNewKeyframe(below, policy));
+  EXPECT_TRUE(isNewKeyframe(above, policy));
   // Zero-weight pixels do not count; losing most of them forces a keyframe.
   cv::Mat sparse(grid, CV_32FC2, cv::Scalar(0, 0));
   sparse.rowRange(0, 10).setTo(cv::Scalar(1, 1));
   const FlowMotion lost = measureFlowMotion(shifted(0.5, 0), sparse);
   EXPECT_NEAR(lost.valid_fraction, 10.0 / 48, 1e-9);
-  EXPECT_TRUE(isNewKeyframe(lost, 2.5, 0.3));
+  EXPECT_TRUE(isNewKeyframe(lost, policy));
+}
+
+TEST(Keyframes, ParallaxSplitsRotationFromTranslation) {
+  const GridGeometry g = makeGridGeometry(pinhole(512, 384, 400), kCell);
+  const CameraModel& cam = g.grid;
+  const cv::Mat weight(g.gridSize(), CV_32FC2, cv::Scalar(1, 1));
+  // Targets of a pure rotation about y: all of the flow is rotation, no parallax.
+  const Mat3 R = SO3::exp(Vec3(0, 0.03, 0)).matrix();
+  cv::Mat rotated(g.gridSize(), CV_32FC2), shifted(g.gridSize(), CV_32FC2);
+  for (int v = 0; v < cam.height; ++v) {
+    for (int u = 0; u < cam.width; ++u) {
+      const Vec3 q = R * Vec3((u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, 1);
+      rotated.at<cv::Vec2f>(v, u) = cv::Vec2f(static_cast<float>(cam.fx * q.x() / q.z() + cam.cx),
+                                              static_cast<float>(cam.fy * q.y() / q.z() + cam.cy));
+      shifted.at<cv::Vec2f>(v, u) = cv::Vec2f(u + 3.0f, static_cast<float>(v));
+    }
+  }
+  const FlowMotion r = measureFlowMotion(rotated, weight, cam, R);
+  EXPECT_NEAR(r.mean_parallax_px, 0, 1e-3);
+  EXPECT_NEAR(r.mean_rotation_px, r.mean_flow_px, 1e-3);
+  EXPECT_GT(r.mean_flow_px, 1.4);  // 0.03 rad x fx 50 = 1.5 grid px
+  // The same displacement field measured without rotation is all parallax.
+  const FlowMotion t = measureFlowMotion(shifted, weight, cam, Mat3::Identity());
+  EXPECT_NEAR(t.mean_parallax_px, 3.0, 1e-5);
+  EXPECT_NEAR(t.mean_rotation_px, 0, 1e-9);
+  KeyframePolicy policy;
+  policy.flow_px = 5;
+  policy.rotation_px = 2;
+  EXPECT_FALSE(isNewKeyframe(t, policy)) << "3 px of parallax < 5: wait for a baseline";
+  policy.flow_px = 2.5;
+  EXPECT_TRUE(isNewKeyframe(t, policy));
+  // 1.5 px of pure rotation is below rotation_px: no keyframe, however large flow_px is not.
+  policy.flow_px = 1;
+  EXPECT_FALSE(isNewKeyframe(r, policy)) << "rotation alone does not condition depths";
+  // Pure rotation beyond rotation_px makes a keyframe whatever the parallax.
+  const Mat3 R2 = SO3::exp(Vec3(0, 0.06, 0)).matrix();
+  cv::Mat rotated2(g.gridSize(), CV_32FC2);
+  for (int v = 0; v < cam.height; ++v) {
+    for (int u = 0; u < cam.width; ++u) {
+      const Vec3 q = R2 * Vec3((u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, 1);
+      rotated2.at<cv::Vec2f>(v, u) = cv::Vec2f(static_cast<float>(cam.fx * q.x() / q.z() + cam.cx),
+                                               static_cast<float>(cam.fy * q.y() / q.z() + cam.cy));
+    }
+  }
+  policy.flow_px = 100;
+  EXPECT_TRUE(isNewKeyframe(measureFlowMotion(rotated2, weight, cam, R2), policy));
 }
 
 TEST(Flow, PredictedFlowFollowsTheGridConvention) {
@@ -225,6 +275,53 @@ TEST(Flow, ForwardBackwardFailureLowersConfidence) {
     }
   }
   EXPECT_GT(good, 0.95 * total);
+}
+
+TEST(Flow, CellRefinementRemovesTheZoomBias) {
+  // b is a zoomed by 3% about the image centre: the flow at working pixel x is 0.03 (x - c),
+  // so the true grid target of cell (u, v) is c_g + 1.03 ((u, v) - c_g).
+  const GridGeometry g = makeGridGeometry(pinhole(256, 192, 200), kCell);
+  const cv::Mat a = texture(cv::Size(256, 192), 3);
+  const double s = 1.03, cx = 127.5, cy = 95.5;
+  const cv::Mat M = (cv::Mat_<double>(2, 3) << s, 0, (1 - s) * cx, 0, s, (1 - s) * cy);
+  cv::Mat b;
+  cv::warpAffine(a, b, M, a.size(), cv::INTER_CUBIC, cv::BORDER_REFLECT);
+  FlowOptions options;
+  DenseFlow flow(options);
+  const cv::Mat f_ab = flow.compute(a, b), f_ba = flow.compute(b, a);
+  Correspondences c = flowToCorrespondences(a, b, f_ab, f_ba, g, options);
+  // Least-squares zoom factor of the targets, and the median error.
+  auto measure = [&](const Correspondences& corr, double* zoom, double* median) {
+    double num = 0, den = 0;
+    std::vector<double> errors;
+    for (int v = 2; v < corr.target.rows - 2; ++v) {
+      for (int u = 2; u < corr.target.cols - 2; ++u) {
+        if (corr.weight.at<cv::Vec2f>(v, u)[0] <= 0) continue;
+        const double pu = u - (cx - 3.5) / kCell, pv = v - (cy - 3.5) / kCell;
+        const cv::Vec2f t = corr.target.at<cv::Vec2f>(v, u);
+        const double tu = t[0] - (cx - 3.5) / kCell, tv = t[1] - (cy - 3.5) / kCell;
+        num += tu * pu + tv * pv;
+        den += pu * pu + pv * pv;
+        errors.push_back(std::hypot(tu - s * pu, tv - s * pv));
+      }
+    }
+    ASSERT_GT(errors.size(), 200u);
+    *zoom = num / den;
+    std::nth_element(errors.begin(), errors.begin() + errors.size() / 2, errors.end());
+    *median = errors[errors.size() / 2];
+  };
+  double zoom_dis, median_dis, zoom_lk, median_lk;
+  measure(c, &zoom_dis, &median_dis);
+  const int refined =
+      refineTargets(a, imageGradients(a), b, kCell, RefineOptions(), &c.target, &c.weight);
+  EXPECT_GT(refined, 0.8 * c.target.total());
+  measure(c, &zoom_lk, &median_lk);
+  RecordProperty("zoom_dis", std::to_string(zoom_dis));
+  RecordProperty("zoom_refined", std::to_string(zoom_lk));
+  EXPECT_NEAR(zoom_lk, s, 0.002) << "DIS alone: " << zoom_dis;
+  EXPECT_LT(std::abs(zoom_lk - s), std::abs(zoom_dis - s));
+  EXPECT_LT(median_lk, 0.01) << "grid px";
+  EXPECT_LE(median_lk, median_dis);
 }
 
 // True grid target of each cell of a: the mean over the cell of the exact reprojection of its

@@ -1,0 +1,93 @@
+#include "tracker/keyframe_graph.h"
+
+#include <gtest/gtest.h>
+
+namespace radslam {
+namespace {
+
+CameraModel gridCamera() {
+  CameraModel c;
+  c.width = 16;
+  c.height = 12;
+  c.fx = c.fy = 20;
+  c.cx = 7.5;
+  c.cy = 5.5;
+  return c;
+}
+
+/// A keyframe at camera centre x (m) looking along +z at a plane 2 m away.
+KeyframeData keyframeAt(double x) {
+  const CameraModel grid = gridCamera();
+  KeyframeData k;
+  k.grey = cv::Mat(grid.height * 8, grid.width * 8, CV_8UC1, cv::Scalar(100));
+  k.structure = cv::Mat(grid.height, grid.width, CV_32FC3, cv::Scalar(1, 0, 1));
+  k.ba.T_world_cam = SE3(SO3(), Vec3(x, 0, 0));
+  k.ba.inv_depth = cv::Mat(grid.height, grid.width, CV_32FC1, cv::Scalar(0.5));
+  k.inv_depth_var = cv::Mat(grid.height, grid.width, CV_32FC1, cv::Scalar(0.01));
+  return k;
+}
+
+GraphEdge edge(int i, int j, int anchor = -1) {
+  const CameraModel grid = gridCamera();
+  return GraphEdge{i,
+                   j,
+                   cv::Mat(grid.height, grid.width, CV_32FC2, cv::Scalar(0, 0)),
+                   cv::Mat(grid.height, grid.width, CV_32FC2, cv::Scalar(1, 1)),
+                   std::nullopt,
+                   anchor};
+}
+
+TEST(KeyframeGraph, LoopEdgesAnchorOldKeyframesAsFixedPoses) {
+  const CameraModel grid = gridCamera();
+  KeyframeGraph graph(2, 2);
+  // Keyframes 0..3 move away along x, keyframe 4 comes back next to keyframe 0.
+  for (double x : {0.0, 1.0, 2.0, 3.0}) {
+    graph.add(keyframeAt(x));
+    graph.slideWindow();
+  }
+  // Window {2, 3}; 0 and 1 left it and keep their grey images (at most 2 kept).
+  EXPECT_EQ(graph.windowIds(), (std::vector<int>{2, 3}));
+  EXPECT_FALSE(graph.keyframe(0).grey.empty());
+  EXPECT_TRUE(graph.keyframe(0).ba.fixed_pose);
+  // Leaving the window turns the last estimate and its marginal variance into the prior.
+  EXPECT_FLOAT_EQ(graph.keyframe(0).ba.prior_inv_depth.at<float>(3, 3), 0.5f);
+  EXPECT_FLOAT_EQ(graph.keyframe(0).ba.prior_inv_depth_var.at<float>(3, 3), 0.01f);
+
+  graph.add(keyframeAt(0.05));
+  graph.slideWindow();  // window {3, 4}; 2 leaves, 0 loses its image (kept: 1, 2)
+  EXPECT_TRUE(graph.keyframe(0).grey.empty());
+  // Keyframes 1 and 2 are outside the window with their images; the oldest one that keyframe
+  // 4 overlaps by more than the threshold is its loop partner.
+  const double overlap1 = graph.overlap(4, 1, grid, 0.2);
+  EXPECT_GT(overlap1, 0.3);
+  EXPECT_EQ(graph.loopPartner(4, grid, 0.3, 0.2), 1);
+  EXPECT_EQ(graph.loopPartner(4, grid, 0.99, 0.2), -1);
+
+  graph.setEdge(edge(3, 4));
+  graph.setEdge(edge(4, 3));
+  graph.setEdge(edge(1, 4, 1));
+  graph.setEdge(edge(4, 1, 1));
+  std::vector<int> ids;
+  const DenseBaProblem problem = graph.buildProblem(grid, &ids);
+  EXPECT_EQ(ids, (std::vector<int>{3, 4}));  // only window keyframes are written back
+  ASSERT_EQ(problem.keyframes.size(), 3u);   // window + anchor
+  EXPECT_TRUE(problem.keyframes[2].fixed_pose);
+  EXPECT_NEAR(problem.keyframes[2].T_world_cam.translation().x(), 1.0, 1e-12);
+  EXPECT_EQ(problem.edges.size(), 4u);
+
+  // The loop edges stay while keyframe 4 is in the window and go with it.
+  graph.add(keyframeAt(0.1));
+  graph.slideWindow();  // window {4, 5}: 3 leaves
+  EXPECT_EQ(graph.edges().size(), 2u);
+  graph.add(keyframeAt(0.2));
+  graph.slideWindow();  // window {5, 6}: 4 leaves
+  EXPECT_TRUE(graph.edges().empty());
+}
+
+TEST(KeyframeGraph, RejectsInvalidSizes) {
+  EXPECT_THROW(KeyframeGraph(1), std::invalid_argument);
+  EXPECT_THROW(KeyframeGraph(4, -1), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace radslam

@@ -1,0 +1,125 @@
+#include "tracker/frontend_refine.h"
+
+#include <cmath>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/LU>
+#include <opencv2/imgproc.hpp>
+
+namespace radslam {
+
+cv::Mat imageGradients(const cv::Mat& grey) {
+  CV_Assert(grey.type() == CV_8UC1);
+  cv::Mat gx, gy, out;
+  // The 3x3 Sobel sums 8 x the central difference: scale 1/8 gives grey levels per pixel.
+  cv::Sobel(grey, gx, CV_32F, 1, 0, 3, 0.125, 0, cv::BORDER_REPLICATE);
+  cv::Sobel(grey, gy, CV_32F, 0, 1, 3, 0.125, 0, cv::BORDER_REPLICATE);
+  cv::merge(std::vector<cv::Mat>{gx, gy}, out);
+  return out;
+}
+
+int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::Mat& grey_b,
+                  int cell, const RefineOptions& options, cv::Mat* target, cv::Mat* weight) {
+  CV_Assert(grey_a.type() == CV_8UC1 && grey_b.type() == CV_8UC1 &&
+            grey_a.size() == grey_b.size() && gradients_a.type() == CV_32FC2 &&
+            gradients_a.size() == grey_a.size() && cell >= 1);
+  CV_Assert(target && target->type() == CV_32FC2 && target->cols * cell == grey_a.cols &&
+            target->rows * cell == grey_a.rows && weight && weight->type() == CV_32FC2 &&
+            weight->size() == target->size());
+  const int W = grey_a.cols, H = grey_a.rows;
+  const float max_shift2 = static_cast<float>(options.max_shift_px * options.max_shift_px);
+  const int m = options.margin;
+  const int side = cell + 2 * m;
+  const int n = side * side;
+  std::vector<float> ia(n), gxs(n), gys(n);
+  const bool offset = options.brightness_offset;
+  int refined = 0;
+  for (int v = 0; v < target->rows; ++v) {
+    cv::Vec2f* t = target->ptr<cv::Vec2f>(v);
+    cv::Vec2f* w = weight->ptr<cv::Vec2f>(v);
+    for (int u = 0; u < target->cols; ++u) {
+      if (!(w[u][0] > 0 || w[u][1] > 0) || !std::isfinite(t[u][0]) || !std::isfinite(t[u][1])) {
+        continue;
+      }
+      // The cell's pixels, gradients and the constant Hessian of (dx, dy, offset).
+      float sxx = 0, sxy = 0, syy = 0, sx = 0, sy = 0;
+      int k = 0;
+      const int xa = u * cell - m, ya = v * cell - m;  // window corner in a
+      if (xa < 0 || ya < 0 || xa + side > W || ya + side > H) {
+        if (options.reject_failures) w[u] = cv::Vec2f(0, 0);
+        continue;
+      }
+      for (int j = 0; j < side; ++j) {
+        const uint8_t* ra = grey_a.ptr<uint8_t>(ya + j) + xa;
+        const cv::Vec2f* rg = gradients_a.ptr<cv::Vec2f>(ya + j) + xa;
+        for (int i = 0; i < side; ++i, ++k) {
+          ia[k] = ra[i];
+          gxs[k] = rg[i][0];
+          gys[k] = rg[i][1];
+          sxx += rg[i][0] * rg[i][0];
+          sxy += rg[i][0] * rg[i][1];
+          syy += rg[i][1] * rg[i][1];
+          sx += rg[i][0];
+          sy += rg[i][1];
+        }
+      }
+      Eigen::Matrix3d Hm;
+      Hm << sxx, sxy, sx, sxy, syy, sy, sx, sy, n;
+      if (!offset) {
+        Hm.row(2).setZero();
+        Hm.col(2).setZero();
+        Hm(2, 2) = 1;
+      }
+      if (!(Hm.topLeftCorner<2, 2>().determinant() > options.min_det)) {
+        if (options.reject_failures) w[u] = cv::Vec2f(0, 0);
+        continue;
+      }
+      const Eigen::Matrix3d Hinv = Hm.inverse();
+      // Displacement of the cell (working px) from its grid target.
+      const float dx0 = cell * (t[u][0] - u), dy0 = cell * (t[u][1] - v);
+      float dx = dx0, dy = dy0;
+      bool ok = true;
+      for (int it = 0; it < options.iterations && ok; ++it) {
+        // A translation: every pixel of the window shares the bilinear weights.
+        const float xs = xa + dx, ys = ya + dy;
+        if (!(xs >= 0 && ys >= 0 && xs + side - 1 <= W - 1 && ys + side - 1 <= H - 1)) {
+          ok = false;
+          break;
+        }
+        const int x0 = std::min(static_cast<int>(xs), W - side - 1);
+        const int y0 = std::min(static_cast<int>(ys), H - side - 1);
+        const float ax = xs - x0, ay = ys - y0;
+        const float w00 = (1 - ax) * (1 - ay), w01 = ax * (1 - ay), w10 = (1 - ax) * ay,
+                    w11 = ax * ay;
+        float b0 = 0, b1 = 0, b2 = 0;
+        k = 0;
+        for (int j = 0; j < side; ++j) {
+          const uint8_t* r0 = grey_b.ptr<uint8_t>(y0 + j) + x0;
+          const uint8_t* r1 = r0 + grey_b.step[0];
+          for (int i = 0; i < side; ++i, ++k) {
+            const float r = w00 * r0[i] + w01 * r0[i + 1] + w10 * r1[i] + w11 * r1[i + 1] - ia[k];
+            b0 += gxs[k] * r;
+            b1 += gys[k] * r;
+            b2 += r;
+          }
+        }
+        if (!offset) b2 = 0;
+        const Eigen::Vector3d step = Hinv * Eigen::Vector3d(b0, b1, b2);
+        dx -= static_cast<float>(step(0));
+        dy -= static_cast<float>(step(1));
+        if (step.head<2>().squaredNorm() < options.converged_px * options.converged_px) break;
+      }
+      const float mx = dx - dx0, my = dy - dy0;
+      if (!ok || !std::isfinite(dx) || !std::isfinite(dy) || mx * mx + my * my > max_shift2) {
+        if (options.reject_failures) w[u] = cv::Vec2f(0, 0);
+        continue;
+      }
+      t[u] = cv::Vec2f(u + dx / cell, v + dy / cell);
+      ++refined;
+    }
+  }
+  return refined;
+}
+
+}  // namespace radslam
