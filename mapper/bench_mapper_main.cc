@@ -1,131 +1,351 @@
-// radslam-bench-mapper: training throughput of the mapper core on a synthetic scene.
-// Prints rays/s and samples/s per core (thread CPU time, so other load on the machine does not
-// count), the PSNR reached on the training views and the render time of one view.
+// radslam-bench-mapper: mapping fidelity and throughput of the mapper core on a dataset.
+// Keyframes are either oracle (ground-truth poses, sensor depth with a sensor-noise variance)
+// or a monocular tracker run (its keyframe poses and depths, brought into the ground-truth frame
+// by a similarity). The field trains for a fixed budget of rays on one thread, then is
+// evaluated: PSNR on the keyframes (at the mapper's poses) and on held-out frames (every 10th
+// non-keyframe, at ground-truth poses), depth L1 against the sensor depth, training rays per
+// CPU second, the training time to come within 0.5 dB of the final PSNR, peak memory. Prints a
+// report and one tab-separated RESULT line (scripts/bench mapper builds its table from them).
 #include <time.h>
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <iostream>
+#include <memory>
+#include <set>
 
 #include <opencv2/imgproc.hpp>
 
+#include "common/camera.h"
 #include "common/cli.h"
-#include "common/synthetic.h"
+#include "common/dataset.h"
+#include "common/process_stats.h"
 #include "mapper/mapper.h"
+#include "mapper/mapper_params.h"
+#include "mapper/mapping_eval.h"
 
 namespace radslam {
 namespace {
 
-double cpuSeconds() {
+const char* kUsage = R"(usage: radslam-bench-mapper --dataset KIND:PATH [options]
+  --keyframes K      oracle (ground-truth poses + sensor depth) or tracker:DIR (a run folder of
+                     radslam-bench-tracker --out DIR); default oracle
+  --depth-loss M     weighted | raw | none (default weighted)
+  --rays N           training budget in rays (default 1000000)
+  --width W          keyframe width (default 256; the height keeps the aspect ratio; tracker
+                     keyframes are resized to it)
+  --kf-stride S      oracle keyframes: every S-th frame (default 5)
+  --frames N         use the first N frames (default all)
+  --checkpoints C    PSNR evaluations during training, for the time to the final PSNR (default 10)
+  --name NAME        row name in the RESULT line (default the dataset kind)
+  --set KEY=VALUE    mapper overrides as radslam-mapper's (comma-separated)
+)";
+
+double threadCpuSeconds() {
   timespec ts;
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
   return ts.tv_sec + 1e-9 * ts.tv_nsec;
 }
 
-double psnr(const cv::Mat& bgr8, const cv::Mat& rgb) {
-  cv::Mat ref;
-  bgr8.convertTo(ref, CV_32FC3, 1 / 255.0);
-  cv::cvtColor(ref, ref, cv::COLOR_BGR2RGB);
-  cv::Mat d = ref - rgb;
-  const cv::Scalar s = cv::mean(d.mul(d));
-  return 10 * std::log10(3 / (s[0] + s[1] + s[2]));
+// A dataset frame undistorted to the keyframe camera, with its ground-truth pose.
+struct EvalFrame {
+  size_t index = 0;
+  int64_t utime = 0;
+  SE3 T_world_cam;  // ground truth
+  cv::Mat color;    // BGR
+  cv::Mat depth;    // m, 0 = none
+};
+
+class FrameSource {
+ public:
+  FrameSource(const DatasetReader& dataset, int width, int height) : dataset_(dataset) {
+    std::string error;
+    const std::optional<Frame> first = dataset.frame(0, &error);
+    if (!first) throw std::runtime_error(error);
+    undistorter_ = std::make_unique<Undistorter>(first->camera, width, height);
+  }
+  const CameraModel& camera() const { return undistorter_->target(); }
+  std::optional<EvalFrame> load(size_t i) const {
+    const std::optional<SE3> gt = poseAt(dataset_.groundTruth(), dataset_.timestamp(i));
+    if (!gt) return std::nullopt;
+    std::string error;
+    const std::optional<Frame> f = dataset_.frame(i, &error);
+    if (!f) {
+      std::cerr << "radslam-bench-mapper: warning: " << error << "\n";
+      return std::nullopt;
+    }
+    EvalFrame e;
+    e.index = i;
+    e.utime = f->header.utime;
+    e.T_world_cam = *gt;
+    cv::Mat color = f->color;
+    if (color.type() == CV_8UC1) cv::cvtColor(color, color, cv::COLOR_GRAY2BGR);
+    e.color = undistorter_->apply(color);
+    if (!f->depth.empty()) e.depth = undistorter_->apply(f->depth, cv::INTER_NEAREST);
+    return e;
+  }
+
+ private:
+  const DatasetReader& dataset_;
+  std::unique_ptr<Undistorter> undistorter_;
+};
+
+// Pixels with a positive finite depth, over all images.
+double validDepthPixels(const std::vector<cv::Mat>& depths) {
+  double n = 0;
+  for (const cv::Mat& d : depths) n += cv::countNonZero(d > 0);
+  return n;
+}
+
+double meanPsnr(const Mapper& mapper, const std::vector<EvalFrame>& frames,
+                const std::vector<SE3>& poses, const CameraModel& camera, DepthError* depth) {
+  double sum = 0;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    const RenderImages r = mapper.render(poses[i], camera);
+    sum += psnr(frames[i].color, r.color);
+    if (depth && !frames[i].depth.empty()) *depth += depthError(r.depth, frames[i].depth);
+  }
+  return frames.empty() ? 0 : sum / frames.size();
 }
 
 int run(int argc, char** argv) {
-  CommandLine cl(
-      argc, argv,
-      "radslam-bench-mapper [--scene room] [--width 320] [--height 240] "
-      "[--keyframes 8] [--steps 200] [--batch 4096] [--patch 4] [--lr-density X] "
-      "[--lr-color X] [--refine-poses true|false] [--surface-samples 16] [--threads 1] [--sh 0] "
-      "[--levels 2] [--eval true|false]");
+  CommandLine cl(argc, argv, kUsage);
   if (cl.helpRequested()) {
-    std::cout << cl.usage() << "\n";
+    std::cout << kUsage;
     return 0;
   }
-  SyntheticConfig config;
-  config.scene = cl.get("scene", "room");
-  config.width = cl.getInt("width", 320);
-  config.height = cl.getInt("height", 240);
-  const int num_keyframes = cl.getInt("keyframes", 8);
-  const int steps = cl.getInt("steps", 200);
-  const bool evaluate = cl.getBool("eval", true);
-  MapperParams params;
-  params.trainer.batch_rays = cl.getInt("batch", params.trainer.batch_rays);
-  params.trainer.patch_size = cl.getInt("patch", params.trainer.patch_size);
-  params.trainer.refine_poses = cl.getBool("refine-poses", params.trainer.refine_poses);
-  params.trainer.surface_samples = cl.getInt("surface-samples", params.trainer.surface_samples);
-  params.trainer.adam.lr_density =
-      static_cast<float>(cl.getDouble("lr-density", params.trainer.adam.lr_density));
-  params.trainer.adam.lr_color =
-      static_cast<float>(cl.getDouble("lr-color", params.trainer.adam.lr_color));
-  params.trainer.threads = cl.getInt("threads", 1);
-  params.sh_degree = cl.getInt("sh", 0);
-  params.levels = cl.getInt("levels", 2);
+  const std::string spec = cl.get("dataset", "");
+  const std::string source = cl.get("keyframes", "oracle");
+  const std::string depth_loss = cl.get("depth-loss", "weighted");
+  const double budget = cl.getDouble("rays", 1e6);
+  const int width = cl.getInt("width", 256);
+  const int kf_stride = cl.getInt("kf-stride", 5);
+  const int max_frames = cl.getInt("frames", 0);
+  const int checkpoints = cl.getInt("checkpoints", 10);
+  std::string name = cl.get("name", spec.substr(0, spec.find(':')));
+  const std::string set = cl.get("set", "");
   cl.finish();
-  config.frames = num_keyframes * 10;
-  config.stereo = false;
-  const SyntheticScene scene = SyntheticScene::make(config);
+  if (spec.empty()) throw std::runtime_error("--dataset KIND:PATH is required");
+  if (source != "oracle" && source.rfind("tracker:", 0) != 0)
+    throw std::runtime_error("--keyframes must be oracle or tracker:DIR, got '" + source + "'");
+  if (!(budget > 0) || width < 16 || kf_stride < 1 || checkpoints < 1)
+    throw std::runtime_error("--rays, --width, --kf-stride and --checkpoints must be positive");
+
+  MapperParams params;
+  {
+    std::vector<std::string> overrides;
+    for (size_t start = 0; start < set.size();) {
+      const size_t comma = set.find(',', start);
+      const std::string item =
+          set.substr(start, comma == std::string::npos ? comma : comma - start);
+      if (!item.empty()) overrides.push_back(item);
+      if (comma == std::string::npos) break;
+      start = comma + 1;
+    }
+    std::string dump, where;
+    params = loadMapperParams("", overrides, &dump, &where).core;
+  }
+  params.trainer.depth_loss = parseDepthLoss(depth_loss);
+  params.trainer.threads = 1;
+  params.render_threads = 1;
+
+  const std::unique_ptr<DatasetReader> dataset = openDataset(spec);
+  if (dataset->groundTruth().empty())
+    throw std::runtime_error(dataset->name() + " has no ground truth: nothing to evaluate");
+  const size_t n = max_frames > 0 ? std::min<size_t>(max_frames, dataset->size()) : dataset->size();
+
+  // Keyframes: frame indices, poses and depths.
+  std::vector<size_t> kf_index;
+  std::vector<SE3> kf_pose;
+  std::vector<cv::Mat> kf_depth, kf_var;
+  int kf_width = width;
+  std::unique_ptr<FrameSource> frames;
+  double align_scale = 1;
+  if (source == "oracle") {
+    std::string error;
+    const std::optional<Frame> first = dataset->frame(0, &error);
+    if (!first) throw std::runtime_error(error);
+    const int height =
+        static_cast<int>(std::lround(double(width) * first->camera.height / first->camera.width));
+    frames = std::make_unique<FrameSource>(*dataset, width, height);
+    for (size_t i = 0; i < n; i += kf_stride) {
+      const std::optional<EvalFrame> f = frames->load(i);
+      if (!f || f->depth.empty()) continue;
+      kf_index.push_back(i);
+      kf_pose.push_back(f->T_world_cam);
+      kf_depth.push_back(f->depth);
+      kf_var.push_back(sensorDepthVariance(f->depth));
+    }
+  } else {
+    TrackerRun tracked = readTrackerRun(source.substr(8));
+    // The tracker's keyframes, resized to --width (the undistorted camera of the dataset at
+    // that size is the tracker's camera scaled).
+    const cv::Size full = tracked.keyframes.front().depth.size();
+    const cv::Size size(std::min(width, full.width),
+                        static_cast<int>(std::lround(double(std::min(width, full.width)) *
+                                                     full.height / full.width)));
+    for (TrackerKeyframe& kf : tracked.keyframes) {
+      if (kf.depth.size() != full)
+        throw std::runtime_error(source + ": keyframe depth maps differ in size");
+      cv::resize(kf.depth, kf.depth, size, 0, 0, cv::INTER_NEAREST);
+      cv::resize(kf.sigma, kf.sigma, size, 0, 0, cv::INTER_NEAREST);
+    }
+    kf_width = size.width;
+    frames = std::make_unique<FrameSource>(*dataset, size.width, size.height);
+    std::vector<double> times(n);
+    for (size_t i = 0; i < n; ++i) times[i] = dataset->timestamp(i);
+    // Scale: median ratio of sensor to tracker depth when the dataset has depth (fr1/rpy barely
+    // translates, so positions alone fix the scale poorly), else Umeyama on the positions.
+    std::vector<float> ratios;
+    std::vector<size_t> matched(tracked.keyframes.size(), SIZE_MAX);
+    for (size_t k = 0; k < tracked.keyframes.size(); ++k) {
+      const TrackerKeyframe& kf = tracked.keyframes[k];
+      const auto pairs = associateTimes({kf.t}, times, 0.005);
+      if (pairs.empty()) continue;
+      matched[k] = pairs[0].second;
+      if (!dataset->hasDepth()) continue;
+      const std::optional<EvalFrame> f = frames->load(matched[k]);
+      if (!f || f->depth.empty()) continue;
+      for (int y = 0; y < size.height; y += 4)
+        for (int x = 0; x < size.width; x += 4) {
+          const float a = f->depth.at<float>(y, x), b = kf.depth.at<float>(y, x);
+          if (a > 0 && b > 0 && std::isfinite(b)) ratios.push_back(a / b);
+        }
+    }
+    double scale = 0;
+    if (!ratios.empty()) {
+      std::nth_element(ratios.begin(), ratios.begin() + ratios.size() / 2, ratios.end());
+      scale = ratios[ratios.size() / 2];
+    }
+    const Sim3 S = alignToGroundTruth(tracked.trajectory, dataset->groundTruth(), scale);
+    align_scale = S.scale();
+    for (size_t k = 0; k < tracked.keyframes.size(); ++k) {
+      if (matched[k] == SIZE_MAX) continue;
+      const TrackerKeyframe& kf = tracked.keyframes[k];
+      kf_index.push_back(matched[k]);
+      kf_pose.push_back(S.transformPose(kf.T_world_cam));
+      cv::Mat depth = kf.depth * S.scale(), var;
+      cv::Mat sigma = kf.sigma * S.scale();
+      cv::multiply(sigma, sigma, var);
+      var.setTo(INFINITY, ~(sigma > 0));  // unknown sigma: no depth weight
+      kf_depth.push_back(depth);
+      kf_var.push_back(var);
+    }
+  }
+  if (kf_index.size() < 2) throw std::runtime_error("fewer than 2 keyframes with ground truth");
 
   Mapper mapper(params);
-  std::vector<Keyframe> keyframes;
-  for (int i = 0; i < num_keyframes; ++i) {
-    const Frame frame = scene.frame(i * 10);
+  std::vector<EvalFrame> kf_frames;
+  std::vector<int32_t> kf_ids;  // of kf_frames
+  for (size_t k = 0; k < kf_index.size(); ++k) {
+    std::optional<EvalFrame> f = frames->load(kf_index[k]);
+    if (!f) continue;
     Keyframe kf;
-    kf.header = frame.header;
-    kf.keyframe_id = i;
-    kf.frame_index = frame.frame_index;
-    kf.T_world_cam = scene.cameraPose(i * 10);
-    kf.camera = frame.camera;
-    kf.color = frame.color;
-    kf.depth = frame.depth;
-    kf.depth_var = cv::Mat(frame.depth.size(), CV_32FC1, cv::Scalar(1e-4));  // 1 cm
+    kf.header.utime = f->utime;
+    kf.keyframe_id = static_cast<int32_t>(k);
+    kf.frame_index = static_cast<int64_t>(kf_index[k]);
+    kf.T_world_cam = kf_pose[k];
+    kf.camera = frames->camera();
+    kf.color = f->color;
+    kf.depth = kf_depth[k];
+    kf.depth_var = kf_var[k];
     mapper.addKeyframe(kf);
-    keyframes.push_back(kf);
+    kf_ids.push_back(kf.keyframe_id);
+    // Sensor depth as the reference for the keyframes' depth error.
+    kf_frames.push_back(std::move(*f));
   }
+  // Held out: every 10th frame that is not a keyframe.
+  const std::set<size_t> is_kf(kf_index.begin(), kf_index.end());
+  std::vector<EvalFrame> held;
+  int non_kf = 0;
+  for (size_t i = 0; i < n; ++i) {
+    if (is_kf.count(i)) continue;
+    if (non_kf++ % 10 != 5) continue;  // the middle of each run of 10
+    std::optional<EvalFrame> f = frames->load(i);
+    if (f) held.push_back(std::move(*f));
+  }
+  std::vector<SE3> held_poses;
+  for (const EvalFrame& f : held) held_poses.push_back(f.T_world_cam);
+  const CameraModel& camera = frames->camera();
   const Field& field = mapper.field();
-  std::printf("scene %s %dx%d, %d keyframes; fine voxel %.4f m, %zu blocks (%d fine)\n",
-              config.scene.c_str(), config.width, config.height, num_keyframes,
-              field.geometry().fineVoxelSize(), field.totalBlocks(),
-              field.numBlocks(field.numLevels() - 1));
-  mapper.train(5);  // warm-up: buffers sized
-  int64_t rays = 0, samples = 0;
-  const double cpu0 = cpuSeconds();
-  const auto wall0 = std::chrono::steady_clock::now();
-  TrainStats stats;
-  std::vector<double> step_rate;  // rays per CPU second of each step
-  for (int i = 0; i < steps; ++i) {
-    const double c0 = cpuSeconds();
-    stats = mapper.train(1);
-    step_rate.push_back(stats.rays / std::max(1e-9, cpuSeconds() - c0));
-    rays += stats.rays;
-    samples += stats.samples;
+  if (!field.initialized()) throw std::runtime_error("no keyframe depth: the field is empty");
+  std::printf("%s: %s keyframes (%zu, %dx%d), %zu held-out frames, depth loss %s\n",
+              dataset->name().c_str(), source == "oracle" ? "oracle" : "tracker", kf_frames.size(),
+              camera.width, camera.height, held.size(), depth_loss.c_str());
+  if (source != "oracle") std::printf("  tracker scale to ground truth: %.4f\n", align_scale);
+  std::printf("  keyframe pixels with depth: %.1f%%\n",
+              100.0 * validDepthPixels(kf_depth) /
+                  (double(camera.width) * camera.height * kf_depth.size()));
+  std::printf("  fine voxel %.4f m, %zu blocks (%d fine)\n", field.geometry().fineVoxelSize(),
+              field.totalBlocks(), field.numBlocks(field.numLevels() - 1));
+
+  // Progress set: 4 keyframes spread over the sequence.
+  std::vector<EvalFrame> progress;
+  std::vector<int> progress_kf;
+  for (int j = 0; j < 4; ++j) {
+    const int k = static_cast<int>((kf_frames.size() - 1) * j / 3);
+    progress.push_back(kf_frames[k]);
+    progress_kf.push_back(k);
   }
-  std::sort(step_rate.begin(), step_rate.end());
-  const double cpu = cpuSeconds() - cpu0;
-  const double wall =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
-  std::printf("training: %d steps of %d rays, %.1f samples/ray in allocated space\n", steps,
-              params.trainer.batch_rays, double(samples) / rays);
-  std::printf("  %.0f rays/s per core (CPU time), %.2f M samples/s per core; wall %.0f rays/s\n",
-              rays / cpu, samples / cpu / 1e6, rays / wall);
-  // Other processes on the same core slow steps down unevenly: the upper quartile shows the
-  // rate of an unshared core.
-  std::printf("  per step: median %.0f rays/s, upper quartile %.0f rays/s\n",
-              step_rate[step_rate.size() / 2], step_rate[step_rate.size() * 3 / 4]);
+  auto progressPsnr = [&] {
+    std::vector<SE3> poses;
+    for (int k : progress_kf)
+      poses.push_back(mapper.keyframes().entry(mapper.keyframes().find(kf_ids[k])).T_world_cam);
+    return meanPsnr(mapper, progress, poses, camera, nullptr);
+  };
+
+  int64_t rays = 0, samples = 0;
+  double train_cpu = 0;
+  std::vector<std::pair<double, double>> curve = {{0.0, progressPsnr()}};  // (CPU s, dB)
+  TrainStats stats;
+  for (int c = 1; c <= checkpoints; ++c) {
+    const int64_t target = static_cast<int64_t>(budget * c / checkpoints);
+    const double t0 = threadCpuSeconds();
+    while (rays < target) {
+      stats = mapper.train(1);
+      if (stats.rays == 0) throw std::runtime_error("training drew no rays");
+      rays += stats.rays;
+      samples += stats.samples;
+    }
+    train_cpu += threadCpuSeconds() - t0;
+    curve.emplace_back(train_cpu, progressPsnr());
+  }
+  const double final_progress = curve.back().second;
+  double t_final = train_cpu;
+  for (const auto& [t, p] : curve)
+    if (p >= final_progress - 0.5) {
+      t_final = t;
+      break;
+    }
+
+  std::vector<SE3> kf_poses;
+  for (size_t k = 0; k < kf_frames.size(); ++k)
+    kf_poses.push_back(mapper.keyframes().entry(mapper.keyframes().find(kf_ids[k])).T_world_cam);
+  DepthError kf_depth_err, held_depth_err;
+  const double psnr_kf = meanPsnr(mapper, kf_frames, kf_poses, camera, &kf_depth_err);
+  const double psnr_held = meanPsnr(mapper, held, held_poses, camera, &held_depth_err);
+  const double rate = rays / std::max(1e-9, train_cpu);
+  const double rss = peakRssMb();
+
+  std::printf("  training: %lld rays in %.1f CPU s: %.0f rays/s, %.2f M samples/s per core\n",
+              static_cast<long long>(rays), train_cpu, rate, samples / train_cpu / 1e6);
   std::printf("  last loss %.4f (rgb %.4f, depth %.4f)\n", stats.loss, stats.loss_rgb,
               stats.loss_depth);
-  if (!evaluate) return 0;
-  double sum = 0;
-  const auto r0 = std::chrono::steady_clock::now();
-  for (const Keyframe& kf : keyframes)
-    sum += psnr(kf.color, mapper.render(kf.T_world_cam, kf.camera).color);
-  const double render_s =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - r0).count() /
-      keyframes.size();
-  std::printf("PSNR on the training views: %.2f dB; render %.3f s per view\n",
-              sum / keyframes.size(), render_s);
+  std::printf("  PSNR of 4 keyframes during training:");
+  for (const auto& [t, p] : curve) std::printf(" %.1fs:%.2f", t, p);
+  std::printf("\n  within 0.5 dB of the final after %.1f CPU s\n", t_final);
+  std::printf("  keyframes: PSNR %.2f dB, depth L1 %.4f m (coverage %.1f%%)\n", psnr_kf,
+              kf_depth_err.l1(), 100 * kf_depth_err.coverage());
+  std::printf("  held out:  PSNR %.2f dB, depth L1 %.4f m (coverage %.1f%%)\n", psnr_held,
+              held_depth_err.l1(), 100 * held_depth_err.coverage());
+  std::printf("  peak RSS %.0f MB\n", rss);
+  // name, source, mode, keyframes, held, psnr_kf, psnr_held, l1_kf, l1_held, coverage_held,
+  // rays/s, t_final, rss, width
+  std::printf("RESULT\t%s\t%s\t%s\t%zu\t%zu\t%.2f\t%.2f\t%.4f\t%.4f\t%.1f\t%.0f\t%.1f\t%.0f\t%d\n",
+              name.c_str(), source == "oracle" ? "oracle" : "tracker", depth_loss.c_str(),
+              kf_frames.size(), held.size(), psnr_kf, psnr_held, kf_depth_err.l1(),
+              held_depth_err.l1(), 100 * held_depth_err.coverage(), rate, t_final, rss, kf_width);
   return 0;
 }
 

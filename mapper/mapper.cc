@@ -3,7 +3,10 @@
 #include <algorithm>
 #include <cmath>
 #include <iostream>
+#include <limits>
 #include <stdexcept>
+
+#include <opencv2/imgproc.hpp>
 
 #include "mapper/field_io.h"
 
@@ -21,6 +24,35 @@ double medianDepth(const Keyframe& keyframe) {
   if (depths.empty()) return 0;
   std::nth_element(depths.begin(), depths.begin() + depths.size() / 2, depths.end());
   return depths[depths.size() / 2];
+}
+
+cv::Mat fillDepthHoles(const cv::Mat& depth) {
+  CV_Assert(depth.type() == CV_32FC1);
+  cv::Mat valid = depth > 0;
+  const int holes = static_cast<int>(depth.total()) - cv::countNonZero(valid);
+  if (holes == 0 || holes == static_cast<int>(depth.total())) return depth.clone();
+  // Grow the valid depths into the holes on a coarse grid (max of valid neighbours), then
+  // copy them into the holes at full resolution.
+  constexpr int kCell = 8;
+  const cv::Size coarse((depth.cols + kCell - 1) / kCell, (depth.rows + kCell - 1) / kCell);
+  cv::Mat low(coarse, CV_32FC1, cv::Scalar(0));
+  for (int y = 0; y < depth.rows; ++y)
+    for (int x = 0; x < depth.cols; ++x) {
+      const float d = depth.at<float>(y, x);
+      float& l = low.at<float>(y / kCell, x / kCell);
+      if (d > 0) l = std::max(l, d);
+    }
+  for (int iteration = 0; iteration < coarse.width + coarse.height; ++iteration) {
+    if (cv::countNonZero(low > 0) == static_cast<int>(low.total())) break;
+    cv::Mat grown;
+    cv::dilate(low, grown, cv::Mat());
+    grown.copyTo(low, low <= 0);
+  }
+  cv::Mat out = depth.clone();
+  for (int y = 0; y < depth.rows; ++y)
+    for (int x = 0; x < depth.cols; ++x)
+      if (!valid.at<uint8_t>(y, x)) out.at<float>(y, x) = low.at<float>(y / kCell, x / kCell);
+  return out;
 }
 
 Mapper::Mapper(const MapperParams& params) : params_(params), trainer_(params.trainer) {
@@ -86,10 +118,13 @@ void Mapper::allocateFor(const KeyframeEntry& entry) {
       const float d = kf.depth.at<float>(y, x);
       if (!(d > 0) || d > max_depth) continue;
       if (!mask.empty() && mask.at<uint8_t>(y, x) != 0) continue;
-      const float sigma =
-          std::clamp(std::sqrt(kf.depth_var.at<float>(y, x)), sp.sigma_min, sp.sigma_max);
-      const float lo = std::max(sp.near, d - params_.alloc_sigma_range * sigma);
-      const float hi = d + params_.alloc_sigma_range * sigma;
+      const float var = kf.depth_var.at<float>(y, x);
+      const float sigma = std::clamp(std::sqrt(var), sp.sigma_min, sp.sigma_max);
+      // A filled hole (infinite variance) is a guess: a thinner band keeps memory bounded.
+      const float range =
+          std::isfinite(var) ? params_.alloc_sigma_range : params_.alloc_hole_sigmas;
+      const float lo = std::max(sp.near, d - range * sigma);
+      const float hi = d + range * sigma;
       const Eigen::Vector3f dir =
           R * Eigen::Vector3f(static_cast<float>((x - kf.camera.cx) / kf.camera.fx),
                               static_cast<float>((y - kf.camera.cy) / kf.camera.fy), 1.f);
@@ -126,7 +161,7 @@ void Mapper::seedSurface(const KeyframeEntry& entry, int first_new_block) {
   for (int y = 0; y < cam.height; ++y) {
     for (int x = 0; x < cam.width; ++x) {
       const float d = kf.depth.at<float>(y, x);
-      if (!(d > 0)) continue;
+      if (!(d > 0) || !std::isfinite(kf.depth_var.at<float>(y, x))) continue;  // not guesses
       if (!mask.empty() && mask.at<uint8_t>(y, x) != 0) continue;
       float rgb[3];
       if (kf.color.channels() == 3) {
@@ -161,7 +196,18 @@ void Mapper::seedSurface(const KeyframeEntry& entry, int first_new_block) {
 }
 
 KeyframeStore::InsertResult Mapper::addKeyframe(const Keyframe& keyframe) {
-  const KeyframeStore::InsertResult result = keyframes_.insert(keyframe);
+  KeyframeStore::InsertResult result = keyframes_.insert(keyframe);
+  if (result != KeyframeStore::InsertResult::kIgnored && params_.fill_depth_holes) {
+    // Holes get a guessed depth with infinite variance (the store keeps the normalised images).
+    Keyframe& kf = keyframes_.entry(keyframes_.find(keyframe.keyframe_id)).keyframe;
+    if (!kf.depth.empty()) {
+      const cv::Mat holes = kf.depth <= 0;
+      if (cv::countNonZero(holes) > 0) {
+        kf.depth = fillDepthHoles(kf.depth);
+        kf.depth_var.setTo(std::numeric_limits<float>::infinity(), holes & (kf.depth > 0));
+      }
+    }
+  }
   if (result == KeyframeStore::InsertResult::kIgnored) return result;
   if (!field_.initialized())
     initializeField();  // allocates for every stored keyframe

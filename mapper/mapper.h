@@ -33,6 +33,13 @@ struct MapperParams {
   /// Newly allocated fine voxels at a keyframe's depth start opaque (this raw density) with
   /// the pixel's colour, so training starts from the depth prior instead of fog; 0 = off.
   double seed_density = 8;
+  /// Pixels without depth (sensor holes: beyond range, dark or specular surfaces) get the
+  /// depth of their nearest surroundings with infinite variance: no depth loss, but the field is
+  /// allocated there (within alloc_hole_sigmas of the widest sampling sigma) and training
+  /// samples go there, so their colour is learnt instead of staying background. false = holes
+  /// stay unallocated.
+  bool fill_depth_holes = true;
+  float alloc_hole_sigmas = 1;
   TrainerParams trainer;
   // Render-only path (renders of keyframes, the renderer process).
   float render_step_fine = 0.5f;  // fine voxels
@@ -102,6 +109,11 @@ class Mapper {
   int64_t version_floor_ = 0;  // field versions stay monotonic across resets
   bool block_budget_warned_ = false;
 };
+
+/// depth with its holes (<= 0) filled from the nearest valid depths (the farthest of them, as
+/// holes are mostly beyond the sensor's range); unchanged when it has no valid depth. Filled
+/// values are a guess for allocation and sampling, not a measurement.
+cv::Mat fillDepthHoles(const cv::Mat& depth);
 
 /// Median of the valid (> 0, finite) depths of a keyframe, 0 when none.
 double medianDepth(const Keyframe& keyframe);

@@ -9,6 +9,10 @@
 
 namespace radslam {
 
+namespace {
+constexpr int kFrameRenderStride = 10;  // every 10th non-keyframe is rendered at the end
+}  // namespace
+
 MapperNode::MapperNode(Bus* bus, const MapperNodeParams& params, std::string out_dir)
     : bus_(bus),
       params_(params),
@@ -17,6 +21,7 @@ MapperNode::MapperNode(Bus* bus, const MapperNodeParams& params, std::string out
       reporter_("mapper"),
       start_(std::chrono::steady_clock::now()) {
   bus_->subscribe<Keyframe>(channel::kKeyframe, [this](const Keyframe& k) { onKeyframe(k); });
+  bus_->subscribe<PoseStamped>(channel::kPose, [this](const PoseStamped& p) { onPose(p); });
   bus_->subscribe<Control>(channel::kControl, [this](const Control& c) { onControl(c); });
   reporter_.setState(ProcessState::kIdle);
 }
@@ -30,6 +35,11 @@ void MapperNode::onKeyframe(const Keyframe& keyframe) {
   auto it = queue_.find(keyframe.keyframe_id);
   if (it == queue_.end() || it->second.version < keyframe.version)
     queue_[keyframe.keyframe_id] = keyframe;
+}
+
+void MapperNode::onPose(const PoseStamped& pose) {
+  // Only frames that will be rendered are kept (a few KB per 10 frames).
+  if (pose.frame_index % kFrameRenderStride == 0) frame_poses_[pose.frame_index] = pose;
 }
 
 void MapperNode::onControl(const Control& control) {
@@ -49,6 +59,7 @@ void MapperNode::onControl(const Control& control) {
     case ControlCommand::kReset:
       mapper_.reset();
       queue_.clear();
+      frame_poses_.clear();
       snapshot_requested_ = true;  // replicas start over from the empty field
       break;
   }
@@ -184,10 +195,12 @@ void MapperNode::finish() {
   if (!out_dir_.empty()) {
     try {
       const MapperOutputSummary s = writeMapperOutputs(
-          mapper_, out_dir_, {params_.checkpoint_images, params_.render_stride, params_.mesh_iso});
+          mapper_, out_dir_, {params_.checkpoint_images, params_.render_stride, params_.mesh_iso},
+          nonKeyframeViews(frame_poses_, mapper_.keyframes(), kFrameRenderStride));
       std::cerr << "radslam-mapper: wrote " << s.checkpoint << ", " << s.cloud << " ("
                 << s.cloud_points << " points), " << s.mesh << " (" << s.mesh_faces << " faces), "
-                << s.renders << " renders, " << s.trajectory << "\n";
+                << s.renders << " keyframe and " << s.frame_renders << " frame renders, "
+                << s.trajectory << "\n";
     } catch (const std::exception& e) {
       std::cerr << "radslam-mapper: error: " << e.what() << "\n";
       reporter_.setError(e.what());

@@ -1,5 +1,6 @@
-// The mapper on the bus: KEYFRAME and CONTROL in; FIELD, MAPPER_POSE and STATUS out. Trains
-// continuously between messages on one thread (the core may use more, see threads).
+// The mapper on the bus: KEYFRAME, POSE and CONTROL in; FIELD, MAPPER_POSE and STATUS out.
+// Trains continuously between messages on one thread (the core may use more, see threads).
+// POSE only serves the final outputs: renders of every 10th non-keyframe at its tracked pose.
 #pragma once
 
 #include <chrono>
@@ -40,6 +41,7 @@ class MapperNode {
 
  private:
   void onKeyframe(const Keyframe& keyframe);
+  void onPose(const PoseStamped& pose);
   void onControl(const Control& control);
   void addQueuedKeyframes();
   void publishUpdate(bool flush);
@@ -55,7 +57,9 @@ class MapperNode {
   Mapper mapper_;
   StatusReporter reporter_;
   std::map<int32_t, Keyframe> queue_;  // latest version per id, waiting to be added
-  int64_t delta_base_ = 0;             // version of the last published delta update
+  /// Latest tracked pose per frame index (the tracker re-publishes refined poses at the end).
+  std::map<int64_t, PoseStamped> frame_poses_;
+  int64_t delta_base_ = 0;  // version of the last published delta update
   bool snapshot_requested_ = false;
   bool stop_ = false;
   std::string save_request_;  // checkpoint path asked for by CONTROL SAVE ("" = none)

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cstdio>
 #include <filesystem>
+#include <iterator>
 #include <stdexcept>
 
 #include <opencv2/imgcodecs.hpp>
@@ -19,8 +20,53 @@ std::string renderStem(int64_t utime) {
   return buf;
 }
 
+std::vector<FrameView> nonKeyframeViews(const std::map<int64_t, PoseStamped>& poses,
+                                        const KeyframeStore& keyframes, int stride) {
+  std::vector<FrameView> views;
+  if (keyframes.size() == 0 || stride < 1) return views;
+  std::map<int64_t, int> by_frame;  // keyframe frame index -> store index
+  for (int i = 0; i < keyframes.size(); ++i) by_frame[keyframes.entry(i).keyframe.frame_index] = i;
+  for (const auto& [frame_index, pose] : poses) {
+    if (frame_index % stride != 0 || pose.is_keyframe || by_frame.count(frame_index)) continue;
+    if (pose.state != TrackingState::kTracking && pose.state != TrackingState::kGroundTruth)
+      continue;
+    // Nearest keyframe in frame index: its camera is the one the field was trained at.
+    auto next = by_frame.lower_bound(frame_index);
+    auto nearest = next;
+    if (next == by_frame.end() ||
+        (next != by_frame.begin() &&
+         frame_index - std::prev(next)->first < next->first - frame_index))
+      nearest = std::prev(next);
+    FrameView v;
+    v.utime = pose.header.utime;
+    v.frame_index = frame_index;
+    v.T_world_cam = pose.T_world_cam;
+    v.camera = keyframes.entry(nearest->second).keyframe.camera;
+    views.push_back(v);
+  }
+  return views;
+}
+
+namespace {
+
+// renders/rgb/<stem>.png and renders/depth/<stem>.exr of one view.
+void writeRender(const Mapper& mapper, const SE3& T_world_cam, const CameraModel& camera,
+                 int64_t utime, const std::filesystem::path& rgb_dir,
+                 const std::filesystem::path& depth_dir) {
+  const RenderImages images = mapper.render(T_world_cam, camera);
+  const std::string stem = renderStem(utime);
+  const std::string png = (rgb_dir / (stem + ".png")).string();
+  if (!cv::imwrite(png, toBgr8(images.color)))
+    throw std::runtime_error("mapper outputs: cannot write " + png);
+  writeExr((depth_dir / (stem + ".exr")).string(),
+           {{"depth", images.depth}, {"sigma", images.sigma}});
+}
+
+}  // namespace
+
 MapperOutputSummary writeMapperOutputs(const Mapper& mapper, const std::string& out_dir,
-                                       const MapperOutputOptions& options) {
+                                       const MapperOutputOptions& options,
+                                       const std::vector<FrameView>& frames) {
   namespace fs = std::filesystem;
   MapperOutputSummary summary;
   const fs::path out(out_dir);
@@ -64,14 +110,13 @@ MapperOutputSummary writeMapperOutputs(const Mapper& mapper, const std::string& 
 
   for (int i : order) {
     const KeyframeEntry& e = store.entry(i);
-    const RenderImages images = mapper.render(e.T_world_cam, e.keyframe.camera);
-    const std::string stem = renderStem(e.keyframe.header.utime);
-    const std::string png = (rgb_dir / (stem + ".png")).string();
-    if (!cv::imwrite(png, toBgr8(images.color)))
-      throw std::runtime_error("mapper outputs: cannot write " + png);
-    writeExr((depth_dir / (stem + ".exr")).string(),
-             {{"depth", images.depth}, {"sigma", images.sigma}});
+    writeRender(mapper, e.T_world_cam, e.keyframe.camera, e.keyframe.header.utime, rgb_dir,
+                depth_dir);
     ++summary.renders;
+  }
+  for (const FrameView& v : frames) {
+    writeRender(mapper, v.T_world_cam, v.camera, v.utime, rgb_dir, depth_dir);
+    ++summary.frame_renders;
   }
   return summary;
 }

@@ -1,9 +1,12 @@
 // What the mapper leaves in the run folder: checkpoint, point cloud and mesh (PLY), renders of
-// every keyframe and the refined keyframe trajectory. No bus: the node calls it at the end.
+// every keyframe and of every 10th other frame, and the refined keyframe trajectory. No bus: the
+// node calls it at the end.
 #pragma once
 
 #include <cstdint>
+#include <map>
 #include <string>
+#include <vector>
 
 #include "mapper/mapper.h"
 
@@ -15,20 +18,39 @@ struct MapperOutputOptions {
   float mesh_iso = 1.f;
 };
 
+/// A view to render besides the keyframes: a tracked frame at its pose.
+struct FrameView {
+  int64_t utime = 0;  // the frame's sensor time (names the files)
+  int64_t frame_index = 0;
+  SE3 T_world_cam;
+  CameraModel camera;
+};
+
 struct MapperOutputSummary {
   std::string checkpoint, cloud, mesh, trajectory;
-  int renders = 0;
+  int renders = 0;        // keyframes
+  int frame_renders = 0;  // other frames
   size_t cloud_points = 0, mesh_faces = 0;
 };
 
 /// "%.6f" seconds of a sensor time in microseconds: the file stem of a keyframe's renders.
 std::string renderStem(int64_t utime);
 
+/// The frames to render besides the keyframes: of the tracked poses (latest per frame index),
+/// those with frame_index % stride == 0 that are neither flagged as keyframes nor the frame of
+/// a stored keyframe, tracked (not lost or initialising), each with the camera of the stored
+/// keyframe nearest in frame index (keyframes carry the camera at training resolution).
+/// Empty when there are no keyframes. Sorted by frame index.
+std::vector<FrameView> nonKeyframeViews(const std::map<int64_t, PoseStamped>& poses,
+                                        const KeyframeStore& keyframes, int stride = 10);
+
 /// Writes into out_dir (created if needed): mapper.ckpt, map_points.ply, map_mesh.ply,
 /// mapper_keyframes.txt (TUM, refined poses), renders/rgb/<stem>.png (colour) and
 /// renders/depth/<stem>.exr (channels "depth" and "sigma", m) of every keyframe at its refined
-/// pose and camera. Throws std::runtime_error naming the file that cannot be written.
+/// pose and camera, and of every view in `frames`. Throws std::runtime_error naming the file
+/// that cannot be written.
 MapperOutputSummary writeMapperOutputs(const Mapper& mapper, const std::string& out_dir,
-                                       const MapperOutputOptions& options);
+                                       const MapperOutputOptions& options,
+                                       const std::vector<FrameView>& frames = {});
 
 }  // namespace radslam

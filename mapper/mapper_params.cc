@@ -41,6 +41,8 @@ MapperNodeParams loadMapperParams(const std::string& yaml_path,
   r.get("max_fine_blocks", &c.max_fine_blocks);
   getFloat(r, "alloc_max_depth_ratio", &c.alloc_max_depth_ratio);
   r.get("seed_density", &c.seed_density);
+  r.get("fill_depth_holes", &c.fill_depth_holes);
+  getFloat(r, "alloc_hole_sigmas", &c.alloc_hole_sigmas);
   // Training.
   TrainerParams& t = c.trainer;
   r.get("batch_rays", &t.batch_rays);

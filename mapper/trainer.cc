@@ -169,7 +169,8 @@ void Trainer::traceRay(const Field& field, const VolumeRenderer& renderer, const
     loss_rgb += e * e;
     g.color[ch] = 2 * e;
   }
-  if (depth > 0 && params_.depth_loss != DepthLoss::kNone) {
+  // Infinite variance marks a depth that is no measurement (a filled hole): sampling only.
+  if (depth > 0 && std::isfinite(var) && params_.depth_loss != DepthLoss::kNone) {
     const float sigma2 = params_.depth_loss == DepthLoss::kRaw ? raw_var : std::max(var, min_var);
     if (std::isfinite(sigma2)) {
       // Huber on the normalised residual r = e / sigma: quadratic up to huber sigmas, then

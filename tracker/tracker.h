@@ -71,7 +71,7 @@ struct TrackerParams {
 
   // Per-cell Lucas-Kanade refinement of the flow targets (tracker/frontend_refine.h).
   int refine_iterations = 4;             // 0 = off
-  double refine_max_shift_px = 2.0;      // working px from the DIS target; further: weight 0
+  double refine_max_shift_px = 3.0;      // working px from the DIS target; further: weight 0
   bool refine_brightness_offset = true;  // per-cell offset (auto-exposure)
 
   // Keyframes and window.

@@ -1,5 +1,6 @@
-// The mapper on an in-process bus (memq://): keyframes in; field updates a replica follows
-// bitwise, snapshots and checkpoints on request, status, and the final outputs after STOP.
+// The mapper on an in-process bus (memq://): keyframes and tracked poses in; field updates a
+// replica follows bitwise, snapshots and checkpoints on request, status, and the final outputs
+// (with renders of every 10th non-keyframe at its latest tracked pose) after STOP.
 #include "mapper/mapper_node.h"
 
 #include <stdlib.h>
@@ -52,7 +53,7 @@ MapperNodeParams nodeParams() {
 TEST(MapperNode, FollowsKeyframesPublishesUpdatesAndWritesOutputs) {
   SyntheticConfig config;
   config.scene = "room";
-  config.frames = 30;
+  config.frames = 41;
   config.width = 80;
   config.height = 60;
   config.stereo = false;
@@ -69,9 +70,27 @@ TEST(MapperNode, FollowsKeyframesPublishesUpdatesAndWritesOutputs) {
   bus.subscribe<PoseStamped>(kMapperPoseChannel, [&](const PoseStamped& p) { poses.push_back(p); });
 
   std::vector<Keyframe> keyframes;
+  const int keyframe_frames[3] = {0, 15, 25};
   for (int i = 0; i < 3; ++i) {
-    keyframes.push_back(keyframeOf(scene, i * 10, i));
+    keyframes.push_back(keyframeOf(scene, keyframe_frames[i], i));
     bus.publish(channel::kKeyframe, keyframes.back());
+  }
+  // Tracked poses: frame 20 first with a wrong pose, then re-published with the right one;
+  // frame 30 never arrives and frame 40 is lost, so only frames 10 and 20 get frame renders.
+  PoseStamped stale;
+  stale.frame_index = 20;
+  stale.header = scene.frame(20).header;
+  stale.T_world_cam = SE3(SO3(), Vec3(5, 5, 5));
+  bus.publish(channel::kPose, stale);
+  for (int frame = 0; frame <= 40; ++frame) {
+    if (frame == 30) continue;
+    PoseStamped p;
+    p.header = scene.frame(frame).header;
+    p.frame_index = frame;
+    p.is_keyframe = frame == 0 || frame == 15 || frame == 25;
+    p.state = frame == 40 ? TrackingState::kLost : TrackingState::kTracking;
+    p.T_world_cam = scene.cameraPose(frame);
+    bus.publish(channel::kPose, p);
   }
   Keyframe bad = keyframeOf(scene, 5, 9);
   bad.camera.fx = -1;  // encodes, but is not a camera
@@ -132,7 +151,59 @@ TEST(MapperNode, FollowsKeyframesPublishesUpdatesAndWritesOutputs) {
     ASSERT_EQ(depth.size(), kf.depth.size());
     EXPECT_NEAR(depth.at<float>(30, 40), kf.depth.at<float>(30, 40), 0.1);
   }
+  for (int frame : {10, 20}) {
+    const Frame f = scene.frame(frame);
+    const std::string stem = renderStem(f.header.utime);
+    EXPECT_TRUE(std::filesystem::exists(out + "/renders/rgb/" + stem + ".png")) << stem;
+    const cv::Mat depth = readExrChannel(out + "/renders/depth/" + stem + ".exr", "depth");
+    ASSERT_EQ(depth.size(), f.depth.size());
+    EXPECT_NEAR(depth.at<float>(30, 40), f.depth.at<float>(30, 40), 0.1) << "frame " << frame;
+  }
+  for (int frame : {5, 30, 40}) {
+    const std::string stem = renderStem(scene.frame(frame).header.utime);
+    EXPECT_FALSE(std::filesystem::exists(out + "/renders/rgb/" + stem + ".png")) << frame;
+  }
+  size_t rendered = 0;
+  for (const auto& entry : std::filesystem::directory_iterator(out + "/renders/rgb")) {
+    (void)entry;
+    ++rendered;
+  }
+  EXPECT_EQ(rendered, 5u);  // 3 keyframes + frames 10 and 20
   EXPECT_EQ(renderStem(1305031102175304), "1305031102.175304");
+}
+
+TEST(MapperOutputs, NonKeyframeViewsTakeEveryTenthTrackedFrameWithTheNearestKeyframeCamera) {
+  KeyframeStore store;
+  SyntheticConfig config;
+  config.scene = "room";
+  config.frames = 60;
+  config.width = 40;
+  config.height = 30;
+  config.stereo = false;
+  const SyntheticScene scene = SyntheticScene::make(config);
+  Keyframe a = keyframeOf(scene, 0, 0), b = keyframeOf(scene, 50, 1);
+  b.camera.fx *= 1.5;  // tells the two cameras apart
+  store.insert(a);
+  store.insert(b);
+  std::map<int64_t, PoseStamped> poses;
+  for (int i = 0; i <= 50; i += 5) {
+    PoseStamped p;
+    p.frame_index = i;
+    p.header.utime = 1000 * i;
+    p.is_keyframe = i == 30;
+    p.T_world_cam = scene.cameraPose(i);
+    poses[i] = p;
+  }
+  poses[20].state = TrackingState::kInitializing;
+  EXPECT_TRUE(nonKeyframeViews(poses, KeyframeStore()).empty());
+  const std::vector<FrameView> views = nonKeyframeViews(poses, store);
+  ASSERT_EQ(views.size(), 2u);  // 0, 50: keyframes; 20: initialising; 30: flagged keyframe
+  EXPECT_EQ(views[0].frame_index, 10);
+  EXPECT_EQ(views[0].utime, 10000);
+  EXPECT_EQ(views[0].camera.fx, a.camera.fx);
+  EXPECT_EQ(views[1].frame_index, 40);
+  EXPECT_EQ(views[1].camera.fx, b.camera.fx);
+  EXPECT_TRUE(views[1].T_world_cam.matrix().isApprox(scene.cameraPose(40).matrix()));
 }
 
 TEST(MapperParams, LoadsTheMapperSectionAndRejectsUnknownKeys) {
