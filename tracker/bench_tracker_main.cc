@@ -197,8 +197,8 @@ int run(int argc, char** argv) {
   const double rpe_t = evaluated ? errors.rpe_trans_m : nan;
   const double rpe_r = evaluated ? errors.rpe_rot_deg : nan;
 
-  std::printf("%s %s: %d frames, %zu with pose, %d keyframes, ", name.c_str(), mode.c_str(), frames,
-              estimate.size(), keyframes);
+  std::printf("%s %s: %d frames, %zu with pose, %d keyframes (%d loop edges), ", name.c_str(),
+              mode.c_str(), frames, estimate.size(), keyframes, final_out.stats.loop_edges);
   if (evaluated) {
     std::printf("ATE %.4f m (%s), orientation %.3f deg, RPE %.4f m / %.3f deg, ", ate,
                 alignment.c_str(), rot, rpe_t, rpe_r);

@@ -106,14 +106,20 @@ struct Tracker::Impl {
   std::vector<FrameRecord> frames;
   double baseline_m = 0;  // stereo
   bool ba_ran = false;
-  /// Monocular frames tracked before the first BA, against keyframe 0's constant depths: their
-  /// correspondences are kept and they are aligned again once BA has given keyframe 0 depths.
-  struct InitFrame {
+  bool first_ba_done = false;  // frames were aligned again after the first BA
+  /// Frames are aligned against their keyframe's depths of the moment; BA refines those depths
+  /// while the keyframe is in the window (monocular frames before the first BA even see
+  /// constant depths). Their correspondences are kept and they are aligned again after the
+  /// first BA, when their keyframe leaves the window (its estimate is final then) and in
+  /// finish(): memory stays bounded by the window.
+  struct PendingFrame {
     size_t record = 0;  // index into frames
     cv::Mat target, weight;
   };
-  std::vector<InitFrame> init_frames;
-  void realignInitFrames();
+  std::vector<PendingFrame> pending_frames;
+  /// Aligns the pending frames again; with `leaving`, only those of these keyframes, which are
+  /// then dropped.
+  void realignFrames(const std::vector<int>* leaving);
   int lost_streak = 0;
   TrackerStats stats;
 };
@@ -237,6 +243,7 @@ TrackerOutput Tracker::finish() {
     if (params_.final_ba_iterations > 0 && s.runBa(params_.final_ba_iterations)) {
       s.updateMarginals();
     }
+    s.realignFrames(nullptr);
     s.emitChangedKeyframes(&out, true);
   }
   for (const FrameRecord& r : s.frames) {
@@ -378,24 +385,29 @@ void Tracker::Impl::track(const Frame& frame, const PreparedImage& image, Tracke
   r.cov_rel = aligned.covariance;
   r.state = trackingState();
   frames.push_back(r);
-  if (mode == TrackerMode::kMono && !ba_ran) {
-    init_frames.push_back(InitFrame{frames.size() - 1, c.target, c.weight});
-  }
+  pending_frames.push_back(PendingFrame{frames.size() - 1, c.target, c.weight});
   out->pose = poseMessage(r);
 }
 
-void Tracker::Impl::realignInitFrames() {
+void Tracker::Impl::realignFrames(const std::vector<int>* leaving) {
   const GridGeometry& g = preparer->geometry();
-  for (const InitFrame& f : init_frames) {
+  std::vector<PendingFrame> kept;
+  for (PendingFrame& f : pending_frames) {
     FrameRecord& r = frames[f.record];
+    if (leaving && std::find(leaving->begin(), leaving->end(), r.ref_kf) == leaving->end()) {
+      kept.push_back(std::move(f));
+      continue;
+    }
     const KeyframeData& ref = graph.keyframe(r.ref_kf);
     const MotionOnlyResult aligned =
         aligner.align(g.grid, {ref.ba}, {MotionOnlyEdge{0, f.target, f.weight}}, framePose(r));
-    if (!aligned.ok) continue;
-    r.T_kf_frame = ref.ba.T_world_cam.inverse() * aligned.T_world_frame;
-    r.cov_rel = aligned.covariance;
+    if (aligned.ok) {
+      r.T_kf_frame = ref.ba.T_world_cam.inverse() * aligned.T_world_frame;
+      r.cov_rel = aligned.covariance;
+    }
+    if (!leaving) kept.push_back(std::move(f));
   }
-  init_frames.clear();
+  pending_frames = std::move(kept);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -437,6 +449,7 @@ void Tracker::Impl::makeKeyframe(const Frame& frame, const PreparedImage& image,
     const std::vector<int> window = graph.windowIds();
     leaving.assign(window.begin(), window.end() - 1);
   }
+  realignFrames(&leaving);
   for (int old : leaving) {
     if (graph.changed(old, tolerance)) out->keyframes.push_back(keyframeMessage(old));
   }
@@ -496,7 +509,10 @@ void Tracker::Impl::makeKeyframe(const Frame& frame, const PreparedImage& image,
     if (can_ba) runBa(p.ba_iterations);
   }
   if (can_ba && ba_ran) updateMarginals();
-  if (ba_ran && !init_frames.empty()) realignInitFrames();
+  if (ba_ran && !first_ba_done) {
+    first_ba_done = true;
+    realignFrames(nullptr);
+  }
   if (!ba_ran || graph.keyframe(id).inv_depth_var.empty()) {
     // No BA yet (monocular keyframe 0, RGB-D keyframe 0): the prior is all that is known.
     setPriors();

@@ -165,8 +165,8 @@ TEST(Tracker, MonocularSyntheticRoom) {
   RecordProperty("rot_deg", std::to_string(e.rot_rmse_deg));
   std::printf("mono: ATE %.4f m over a %.3f m path (%.2f%%), orientation %.3f deg, %d keyframes\n",
               e.ate_rmse_m, length, 100 * e.ate_rmse_m / length, e.rot_rmse_deg, r.stats.keyframes);
-  // Measured: ATE 2.4-3% of the path, orientation ~1.2 deg (DIS flow + per-cell refinement on
-  // this aliasing-prone synthetic texture; see the report).
+  // Measured: ATE 1.6-2.0% of the path, orientation 1.1 deg (DIS flow + per-cell refinement
+  // on this aliasing-prone synthetic texture).
   EXPECT_LT(e.ate_rmse_m, 0.04 * length);
   EXPECT_LT(e.rot_rmse_deg, 2.0);
   EXPECT_GE(r.stats.keyframes, 3);
@@ -184,7 +184,7 @@ TEST(Tracker, RgbdSyntheticRoom) {
   std::printf("rgbd: ATE %.4f m (se3), orientation %.3f deg, %d keyframes\n", e.ate_rmse_m,
               e.rot_rmse_deg, r.stats.keyframes);
   RecordProperty("ate_se3_m", std::to_string(e.ate_rmse_m));
-  // Measured: 1.4-1.7 cm (about 2% of the 0.8 m path), 0.4-0.6 deg.
+  // Measured: 1.4 cm (under 2% of the 0.8 m path), 0.6 deg.
   EXPECT_LT(e.ate_rmse_m, 0.025);
   EXPECT_LT(e.rot_rmse_deg, 1.0);
   checkKeyframes(r, roomFrames()[0].camera);
@@ -200,7 +200,7 @@ TEST(Tracker, StereoSyntheticRoomHasMetricScale) {
   std::printf("stereo: scale %.4f, ATE %.4f m (se3), %.4f m (sim3), %d keyframes\n", sim3.scale,
               se3.ate_rmse_m, sim3.ate_rmse_m, r.stats.keyframes);
   RecordProperty("scale", std::to_string(sim3.scale));
-  // Measured: scale 1.017-1.02, ATE 1.1-2 cm.
+  // Measured: scale 0.996-1.001, ATE 1.4 cm.
   EXPECT_NEAR(sim3.scale, 1.0, 0.03);
   EXPECT_LT(se3.ate_rmse_m, 0.025);
   checkKeyframes(r, roomFrames()[0].camera);
