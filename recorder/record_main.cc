@@ -78,6 +78,7 @@ int run(int argc, char** argv) {
       ".*", [&](const std::string& ch, int64_t recv_utime, const uint8_t* data, size_t size) {
         BusyTimer::Scope busy(reporter.busy());
         log.write(recv_utime, ch, data, size);
+        recorder.onMessage(ch, recv_utime, size);
         reporter.itemHandled();
         if (is(ch, channel::kCamera)) {
           recorder.onCameraFrame(recv_utime);

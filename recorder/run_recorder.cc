@@ -162,6 +162,25 @@ std::string RunRecorder::progressLine(double wall_s) const {
   return line.str();
 }
 
+void RunRecorder::onMessage(const std::string& channel, int64_t recv_utime, size_t bytes) {
+  ChannelTraffic& t = traffic_[channel];
+  if (t.messages == 0) t.first_utime = recv_utime;
+  ++t.messages;
+  t.bytes += static_cast<int64_t>(bytes);
+  t.last_utime = recv_utime;
+  // Peak rate: the bytes of the last second, kept as a queue (bounded by one second of
+  // messages).
+  t.recent.emplace_back(recv_utime, bytes);
+  t.recent_bytes += static_cast<int64_t>(bytes);
+  size_t drop = 0;
+  while (drop < t.recent.size() && t.recent[drop].first <= recv_utime - 1000000) {
+    t.recent_bytes -= static_cast<int64_t>(t.recent[drop].second);
+    ++drop;
+  }
+  t.recent.erase(t.recent.begin(), t.recent.begin() + static_cast<std::ptrdiff_t>(drop));
+  t.max_bytes_in_1s = std::max(t.max_bytes_in_1s, t.recent_bytes);
+}
+
 std::string RunRecorder::exportRun(const std::string& out_dir, double wall_s, int64_t log_events,
                                    int64_t log_bytes) const {
   fs::create_directories(out_dir);
@@ -250,6 +269,21 @@ std::string RunRecorder::exportRun(const std::string& out_dir, double wall_s, in
       json << ", \"" << jsonKey(key) << "\": " << jsonNumber(value);
     json << "}";
   }
+  // Traffic per channel: mean rate over the channel's active span and the peak 1 s rate.
+  auto meanRate = [](const ChannelTraffic& t) {
+    const double span_s = static_cast<double>(t.last_utime - t.first_utime) * 1e-6;
+    return span_s > 0 ? static_cast<double>(t.bytes) / span_s : 0.0;
+  };
+  json << ",\n  \"channels\": {";
+  first = true;
+  for (const auto& [name, t] : traffic_) {
+    json << (first ? "\n" : ",\n") << "    \"" << jsonEscape(name)
+         << "\": {\"messages\": " << t.messages << ", \"bytes\": " << t.bytes
+         << ", \"mean_bytes_per_s\": " << jsonNumber(meanRate(t))
+         << ", \"peak_bytes_per_s\": " << t.max_bytes_in_1s << "}";
+    first = false;
+  }
+  json << "\n  }";
   json << "\n}\n";
   {
     std::ofstream out(out_dir + "/summary.json");
@@ -284,6 +318,16 @@ std::string RunRecorder::exportRun(const std::string& out_dir, double wall_s, in
     std::snprintf(row, sizeof(row), "  %-11s %-9s %7.1f %9.1f %11.1f\n", name.c_str(),
                   stateName(status.state), status.fps, status.busy_s, status.peak_rss_mb);
     text << row;
+  }
+  if (!traffic_.empty()) {
+    text << "  channel                 messages        MB   mean MB/s   peak MB/s\n";
+    for (const auto& [name, t] : traffic_) {
+      char row[200];
+      std::snprintf(row, sizeof(row), "  %-22s %9lld %9.1f %11.2f %11.2f\n", name.c_str(),
+                    static_cast<long long>(t.messages), static_cast<double>(t.bytes) / 1e6,
+                    meanRate(t) / 1e6, static_cast<double>(t.max_bytes_in_1s) / 1e6);
+      text << row;
+    }
   }
   {
     std::ofstream out(out_dir + "/summary.txt");

@@ -45,6 +45,9 @@ class RunRecorder {
   void onObjects(const ObjectList& objects);
   void onGroundTruthObjects(const ObjectList& objects);
   void onStatus(const Status& status);
+  /// Traffic accounting: every message seen on the bus (any channel), with its receive time
+  /// (us) and encoded size (bytes).
+  void onMessage(const std::string& channel, int64_t recv_utime, size_t bytes);
 
   /// One line for the terminal: frames, rates, keyframes, map state.
   std::string progressLine(double wall_s) const;
@@ -69,6 +72,15 @@ class RunRecorder {
   std::vector<ObjectList> objects_;
   std::vector<ObjectList> ground_truth_objects_;
   std::map<std::string, Status> statuses_;  // latest per process
+  struct ChannelTraffic {
+    int64_t messages = 0;
+    int64_t bytes = 0;
+    int64_t first_utime = 0, last_utime = 0;         // us
+    int64_t max_bytes_in_1s = 0;                     // largest sum over a sliding 1 s window
+    std::vector<std::pair<int64_t, size_t>> recent;  // (utime, bytes) of the last second
+    int64_t recent_bytes = 0;
+  };
+  std::map<std::string, ChannelTraffic> traffic_;
 };
 
 }  // namespace radslam

@@ -98,5 +98,23 @@ TEST(RunRecorderTest, SummaryWithoutGroundTruthSaysSo) {
   EXPECT_NE(readFile(out + "/summary.json").find("\"ate_rmse_m\": null"), std::string::npos);
 }
 
+TEST(RunRecorderTest, ReportsTrafficPerChannel) {
+  RunRecorder recorder(RecorderParams{});
+  // FIELD: 1 MB every 0.5 s for 4 s (mean 2 MB/s, any 1 s window holds 2 or 3 messages);
+  // POSE: 100 B at 30 Hz.
+  for (int k = 0; k <= 8; ++k) recorder.onMessage("FIELD", k * 500'000, 1'000'000);
+  for (int k = 0; k <= 120; ++k) recorder.onMessage("POSE", k * 33'333, 100);
+  const std::string out = ::testing::TempDir() + "/run_recorder_test_traffic";
+  std::filesystem::remove_all(out);
+  const std::string summary = recorder.exportRun(out, 4.0, 130, 9'012'100);
+  const std::string json = readFile(out + "/summary.json");
+  EXPECT_NE(json.find("\"FIELD\": {\"messages\": 9, \"bytes\": 9000000, \"mean_bytes_per_s\": "
+                      "2250000, \"peak_bytes_per_s\": 2000000}"),
+            std::string::npos)
+      << json;
+  EXPECT_NE(json.find("\"POSE\": {\"messages\": 121, \"bytes\": 12100"), std::string::npos) << json;
+  EXPECT_NE(summary.find("FIELD"), std::string::npos) << summary;
+}
+
 }  // namespace
 }  // namespace radslam
