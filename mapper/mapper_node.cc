@@ -158,7 +158,11 @@ bool MapperNode::spinOnce(int timeout_ms) {
     rays_ += last_stats_.rays;
   }
   // (A snapshot of no field would mean nothing to a replica: wait until there is one.)
-  if (snapshot_requested_ && mapper_.field().initialized()) publishSnapshot();
+  if (snapshot_requested_ && mapper_.field().initialized() &&
+      now() - last_snapshot_ >= params_.snapshot_min_period_s) {
+    last_snapshot_ = now();
+    publishSnapshot();
+  }
   if (save_requested_) {
     save_requested_ = false;
     saveCheckpoint(!save_request_.empty() ? save_request_

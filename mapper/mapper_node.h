@@ -65,7 +65,7 @@ class MapperNode {
   std::string save_request_;  // checkpoint path asked for by CONTROL SAVE ("" = none)
   bool save_requested_ = false;
   std::chrono::steady_clock::time_point start_;
-  double last_update_ = -1e9, last_status_ = -1e9;
+  double last_update_ = -1e9, last_status_ = -1e9, last_snapshot_ = -1e9;
   int64_t rays_ = 0;
   double train_s_ = 0;
   TrainStats last_stats_;

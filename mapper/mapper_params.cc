@@ -85,6 +85,7 @@ MapperNodeParams loadMapperParams(const std::string& yaml_path,
   r.get("update_period_s", &p.update_period_s);
   r.get("max_blocks_per_update", &p.max_blocks_per_update);
   r.get("status_period_s", &p.status_period_s);
+  r.get("snapshot_min_period_s", &p.snapshot_min_period_s);
   r.get("final_training_s", &p.final_training_s);
   r.get("checkpoint_images", &p.checkpoint_images);
   r.get("render_stride", &p.render_stride);
@@ -93,10 +94,10 @@ MapperNodeParams loadMapperParams(const std::string& yaml_path,
   r.finish();
   t.depth_loss = parseDepthLoss(depth_loss);
   if (p.update_period_s <= 0 || p.status_period_s <= 0 || p.final_training_s < 0 ||
-      p.render_stride < 1)
+      p.render_stride < 1 || p.snapshot_min_period_s < 0 || p.max_blocks_per_update < 1)
     throw std::invalid_argument(
         "mapper: update_period_s and status_period_s must be > 0, final_training_s >= 0, "
-        "render_stride >= 1");
+        "render_stride >= 1, snapshot_min_period_s >= 0, max_blocks_per_update >= 1");
   if (dump) *dump = r.dump();
   if (source) *source = r.source();
   return p;

@@ -11,14 +11,18 @@ namespace radslam {
 
 struct MapperNodeParams {
   MapperParams core;
-  double update_period_s = 1.0;      // FIELD updates at most this often
-  int max_blocks_per_update = 1000;  // bounds a FIELD message (about 8 KB per RGB block)
-  double status_period_s = 0.5;      // STATUS heartbeat
-  double final_training_s = 5.0;     // training burst after a stop request
-  bool checkpoint_images = true;     // checkpoints carry the keyframe images (to resume)
-  int render_stride = 2;             // final point cloud: every n-th pixel of each keyframe
-  float mesh_iso = 1.f;              // final mesh: optical thickness per fine voxel
-  bool publish_poses = true;         // refined keyframe poses on MAPPER_POSE
+  double update_period_s = 1.0;  // FIELD updates at most this often
+  // Bounds a FIELD message (about 8 KB per RGB block): 250 blocks a second keep FIELD near
+  // 2 MB/s, so that bursts do not overrun the receivers' socket buffers (a lost update costs
+  // a snapshot).
+  int max_blocks_per_update = 250;
+  double snapshot_min_period_s = 10.0;  // snapshot requests in between are served together
+  double status_period_s = 0.5;         // STATUS heartbeat
+  double final_training_s = 5.0;        // training burst after a stop request
+  bool checkpoint_images = true;        // checkpoints carry the keyframe images (to resume)
+  int render_stride = 2;                // final point cloud: every n-th pixel of each keyframe
+  float mesh_iso = 1.f;                 // final mesh: optical thickness per fine voxel
+  bool publish_poses = true;            // refined keyframe poses on MAPPER_POSE
 };
 
 /// Reads yaml_path's "mapper" section ("" = defaults) with "key=value" overrides; *dump gets
