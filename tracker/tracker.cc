@@ -73,6 +73,8 @@ struct Tracker::Impl {
                              const cv::Mat& flow_ab, const cv::Mat& flow_ba) const;
 
   // Keyframe pairs, BA and output.
+  /// Flow a -> b and b -> a warm-started from the current estimate, as correspondences.
+  std::pair<Correspondences, Correspondences> measureBothWays(int a, int b);
   void measurePair(int a, int b);
   /// Loop edges between window keyframe id and anchor a; false (no edge) when too few pixels
   /// are tracked.
@@ -543,7 +545,7 @@ Correspondences Tracker::Impl::correspond(const cv::Mat& grey_a, const cv::Mat& 
   return c;
 }
 
-void Tracker::Impl::measurePair(int a, int b) {
+std::pair<Correspondences, Correspondences> Tracker::Impl::measureBothWays(int a, int b) {
   const GridGeometry& g = preparer->geometry();
   const KeyframeData& ka = graph.keyframe(a);
   const KeyframeData& kb = graph.keyframe(b);
@@ -553,26 +555,22 @@ void Tracker::Impl::measurePair(int a, int b) {
       predictedFlow(reprojectKeyframe(g.grid, kb.ba, ka.ba.T_world_cam, p.min_depth_ratio), g);
   const cv::Mat f_ab = flow.compute(ka.grey, kb.grey, init_ab);
   const cv::Mat f_ba = flow.compute(kb.grey, ka.grey, init_ba);
-  Correspondences c_ab = correspond(ka.grey, ka.gradients, ka.structure, kb.grey, f_ab, f_ba);
-  Correspondences c_ba = correspond(kb.grey, kb.gradients, kb.structure, ka.grey, f_ba, f_ab);
+  // A keyframe outside the window keeps only its grey image and structure tensor.
+  auto gradients = [](const KeyframeData& k) {
+    return k.gradients.empty() ? imageGradients(k.grey) : k.gradients;
+  };
+  return {correspond(ka.grey, gradients(ka), ka.structure, kb.grey, f_ab, f_ba),
+          correspond(kb.grey, gradients(kb), kb.structure, ka.grey, f_ba, f_ab)};
+}
+
+void Tracker::Impl::measurePair(int a, int b) {
+  const auto [c_ab, c_ba] = measureBothWays(a, b);
   graph.setEdge(GraphEdge{a, b, c_ab.target, c_ab.weight, std::nullopt});
   graph.setEdge(GraphEdge{b, a, c_ba.target, c_ba.weight, std::nullopt});
 }
 
 bool Tracker::Impl::measureLoop(int id, int a) {
-  const GridGeometry& g = preparer->geometry();
-  const KeyframeData& k = graph.keyframe(id);
-  const KeyframeData& ka = graph.keyframe(a);
-  const cv::Mat init_ka =
-      predictedFlow(reprojectKeyframe(g.grid, ka.ba, k.ba.T_world_cam, p.min_depth_ratio), g);
-  const cv::Mat init_k =
-      predictedFlow(reprojectKeyframe(g.grid, k.ba, ka.ba.T_world_cam, p.min_depth_ratio), g);
-  const cv::Mat f_ak = flow.compute(ka.grey, k.grey, init_ka);
-  const cv::Mat f_ka = flow.compute(k.grey, ka.grey, init_k);
-  // The anchor keeps only its grey image and structure tensor: gradients again.
-  const Correspondences c_ak =
-      correspond(ka.grey, imageGradients(ka.grey), ka.structure, k.grey, f_ak, f_ka);
-  const Correspondences c_ka = correspond(k.grey, k.gradients, k.structure, ka.grey, f_ka, f_ak);
+  const auto [c_ak, c_ka] = measureBothWays(a, id);
   if (c_ak.valid_fraction < p.loop_min_valid || c_ka.valid_fraction < p.loop_min_valid) {
     return false;
   }
