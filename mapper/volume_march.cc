@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <climits>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 #include <stdexcept>
 #include <thread>
 
@@ -15,9 +17,146 @@ namespace radslam {
 
 namespace {
 
-using Corners = RayWorkspace::Corners;
 using namespace ray_kernels;
 
+// A level's lattice cell around the current sample, kept while the ray stays in it: pointers to
+// the channels of its 8 corners (unallocated corners point at zeros, which add nothing), and the
+// last block found, so that moving to the next cell of the same block needs no lookup.
+template <int C>
+struct LevelCursor {
+  const float* data = nullptr;
+  float inv = 0;  // 1 / voxel size, 1/m
+  int level = 0;
+  int cell[3] = {INT32_MIN, 0, 0};
+  int block_key[3] = {INT32_MIN, 0, 0};
+  int block = -1;
+  bool corner0 = false;  // corner 0 allocated
+  const float* corner[8];
+};
+
+template <int C>
+struct Zeros {
+  static constexpr float values[C] = {};
+};
+
+// Moves the cursor to the cell holding p and returns the position within it (as locate()).
+template <int C>
+[[gnu::always_inline]] inline void moveTo(const Field& field, const float* p, LevelCursor<C>* cur,
+                                          float* frac) {
+  const float qx = p[0] * cur->inv, qy = p[1] * cur->inv, qz = p[2] * cur->inv;
+  const float fx = std::floor(qx), fy = std::floor(qy), fz = std::floor(qz);
+  frac[0] = qx - fx;
+  frac[1] = qy - fy;
+  frac[2] = qz - fz;
+  const int ix = static_cast<int>(fx), iy = static_cast<int>(fy), iz = static_cast<int>(fz);
+  if (ix == cur->cell[0] && iy == cur->cell[1] && iz == cur->cell[2]) return;
+  cur->cell[0] = ix;
+  cur->cell[1] = iy;
+  cur->cell[2] = iz;
+  const int lx = localOf(ix), ly = localOf(iy), lz = localOf(iz);
+  constexpr int kLast = Field::kBlockDim - 1;
+  if (lx < kLast && ly < kLast && lz < kLast) {
+    // The whole cell lies in one block.
+    const int bx = blockOf(ix), by = blockOf(iy), bz = blockOf(iz);
+    if (bx != cur->block_key[0] || by != cur->block_key[1] || bz != cur->block_key[2]) {
+      cur->block_key[0] = bx;
+      cur->block_key[1] = by;
+      cur->block_key[2] = bz;
+      cur->block = field.findBlock(cur->level, bx, by, bz);
+    }
+    cur->corner0 = cur->block >= 0;
+    if (!cur->corner0) {
+      for (int k = 0; k < 8; ++k) cur->corner[k] = Zeros<C>::values;
+      return;
+    }
+    const float* base = cur->data + (static_cast<size_t>(cur->block) * Field::kBlockVoxels +
+                                     Field::voxelInBlock(lx, ly, lz)) *
+                                        C;
+    for (int k = 0; k < 8; ++k) cur->corner[k] = base + kCornerOffset[k] * C;
+    return;
+  }
+  // The cell spans up to 8 blocks.
+  for (int k = 0; k < 8; ++k) {
+    const int x = ix + (k & 1), y = iy + ((k >> 1) & 1), z = iz + (k >> 2);
+    const int bx = blockOf(x), by = blockOf(y), bz = blockOf(z);
+    if (bx != cur->block_key[0] || by != cur->block_key[1] || bz != cur->block_key[2]) {
+      cur->block_key[0] = bx;
+      cur->block_key[1] = by;
+      cur->block_key[2] = bz;
+      cur->block = field.findBlock(cur->level, bx, by, bz);
+    }
+    if (k == 0) cur->corner0 = cur->block >= 0;
+    cur->corner[k] = cur->block < 0
+                         ? Zeros<C>::values
+                         : cur->data + (static_cast<size_t>(cur->block) * Field::kBlockVoxels +
+                                        Field::voxelInBlock(localOf(x), localOf(y), localOf(z))) *
+                                           C;
+  }
+}
+
+// raw[ch] += trilinear interpolation at the cursor's cell (the same sums, in the same order, as
+// gather(); a zero corner adds exactly 0).
+template <int C>
+[[gnu::always_inline]] inline void gatherCell(const LevelCursor<C>& cur, const float* frac,
+                                              float* raw) {
+  // cornerWeights(), unrolled.
+  const float wx[2] = {1 - frac[0], frac[0]};
+  const float wy[2] = {1 - frac[1], frac[1]};
+  const float wz[2] = {1 - frac[2], frac[2]};
+  float acc[C];
+  for (int ch = 0; ch < C; ++ch) acc[ch] = raw[ch];
+#pragma GCC unroll 8
+  for (int k = 0; k < 8; ++k) {
+    const float w = wx[k & 1] * wy[(k >> 1) & 1] * wz[k >> 2];
+    const float* v = cur.corner[k];
+    for (int ch = 0; ch < C; ++ch) acc[ch] += w * v[ch];
+  }
+  for (int ch = 0; ch < C; ++ch) raw[ch] = acc[ch];
+}
+
+// fastExp, log1pUnit, softplus and sigmoid of mapper/field.h on 4 lanes: the same operations
+// in the same order, so each lane is bitwise equal to the scalar function (no FMA contraction
+// or fast-math in this build).
+using Lanes = Eigen::Array4f;
+
+[[gnu::always_inline]] inline Lanes fastExp4(Lanes x) {
+  x = x.max(-87.f).min(88.f);
+  const Lanes r = (x * 1.44269504089f + 12582912.f) - 12582912.f;
+  const Lanes f = (x - r * 0.693145751953125f) - r * 1.428606765330187e-06f;
+  Lanes p = Lanes::Constant(1.f / 720);
+  p = p * f + 1.f / 120;
+  p = p * f + 1.f / 24;
+  p = p * f + 1.f / 6;
+  p = p * f + 0.5f;
+  p = p * f + 1.f;
+  p = p * f + 1.f;
+  const Eigen::Array4i bits = (r.cast<int32_t>() + 127) * (1 << 23);
+  Lanes scale;
+  std::memcpy(scale.data(), bits.data(), sizeof(float) * 4);
+  return p * scale;
+}
+
+[[gnu::always_inline]] inline Lanes log1pUnit4(const Lanes& e) {
+  const Lanes s = e / (2.f + e);
+  const Lanes s2 = s * s;
+  Lanes p = Lanes::Constant(1.f / 11);
+  p = p * s2 + 1.f / 9;
+  p = p * s2 + 1.f / 7;
+  p = p * s2 + 1.f / 5;
+  p = p * s2 + 1.f / 3;
+  p = p * s2 + 1.f;
+  return (2.f * s) * p;
+}
+
+[[gnu::always_inline]] inline Lanes softplus4(const Lanes& x) {
+  return x.max(0.f) + log1pUnit4(fastExp4(-x.abs()));
+}
+[[gnu::always_inline]] inline Lanes sigmoid4(const Lanes& x) { return 1.f / (1.f + fastExp4(-x)); }
+
+// Samples at t = t0, t0 + step, ... through allocated space; at an unallocated coarse or fine
+// block the ray jumps just past the block's exit face. The per-sample work is the fine cell
+// (cached per level), the trilinear sums and the shading; block lookups happen only when a
+// cursor enters a new block.
 template <int NB>
 RayOutput marchImpl(const Field& field, const Ray& ray, const MarchParams& params,
                     const Eigen::Vector3f& bg) {
@@ -32,55 +171,90 @@ RayOutput marchImpl(const Field& field, const Ray& ray, const MarchParams& param
   t0 = std::max(t0, params.near);
   t1 = std::min(t1, params.far);
   const int levels = field.numLevels();
+  const int fine = levels - 1;
   const float basis[4] = {1.f, ray.view_dir.x(), ray.view_dir.y(), ray.view_dir.z()};
   const float bias = field.densityBias();
   const float scale = field.densityScale();
-  const float fine_step = params.step_fine * static_cast<float>(field.voxelSize(levels - 1));
+  const float fine_step = params.step_fine * static_cast<float>(field.voxelSize(fine));
   const float coarse_edge = static_cast<float>(field.voxelSize(0)) * Field::kBlockDim;
-  const float fine_edge = static_cast<float>(field.voxelSize(levels - 1)) * Field::kBlockDim;
+  const float fine_edge = static_cast<float>(field.voxelSize(fine)) * Field::kBlockDim;
   const float nudge = 1e-3f * fine_step;  // past a block face
-  Corners corners[Field::kMaxLevels];
-  CellCache cache[Field::kMaxLevels];
+  const float o[3] = {ray.origin.x(), ray.origin.y(), ray.origin.z()};
+  const float d[3] = {ray.dir.x(), ray.dir.y(), ray.dir.z()};
+  LevelCursor<C> cursor[Field::kMaxLevels];
+  for (int l = 0; l < levels; ++l) {
+    cursor[l].data = field.levelData(l);
+    cursor[l].inv = field.invVoxelSize(l);
+    cursor[l].level = l;
+  }
   int coarse_block[3] = {INT32_MIN, 0, 0};  // last coarse block found allocated
   float transmit = 1.f;
   double s0 = 0, s1 = 0, s2 = 0;  // sum w, sum w t, sum w t^2
   float color[3] = {0, 0, 0};
   float t = t0;
   int samples = 0;
-  while (t < t1 && transmit > params.min_transmittance) {
-    const float p[3] = {ray.origin.x() + t * ray.dir.x(), ray.origin.y() + t * ray.dir.y(),
-                        ray.origin.z() + t * ray.dir.z()};
-    // Empty space: skip the whole unallocated coarse block, else the fine block.
-    const int cb[3] = {static_cast<int>(std::floor(p[0] / coarse_edge)),
-                       static_cast<int>(std::floor(p[1] / coarse_edge)),
-                       static_cast<int>(std::floor(p[2] / coarse_edge))};
-    if (cb[0] != coarse_block[0] || cb[1] != coarse_block[1] || cb[2] != coarse_block[2]) {
-      if (field.findBlock(0, cb[0], cb[1], cb[2]) < 0) {
-        t = std::max(t + nudge, cubeExit(ray, p, coarse_edge) + nudge);
-        continue;
+  // Samples go in batches of up to kLanes consecutive ones in allocated space: their lookups
+  // one by one, their shading on lanes, then the compositing in ray order (which stops where
+  // the scalar loop would).
+  constexpr int kLanes = 4;
+  bool opaque = false;
+  while (!opaque && t < t1 && transmit > params.min_transmittance) {
+    float tb[kLanes];
+    float raw[C][kLanes] = {};
+    int n = 0;
+    float ts = t;
+    for (; n < kLanes && ts < t1; ts += fine_step) {
+      const float p[3] = {o[0] + ts * d[0], o[1] + ts * d[1], o[2] + ts * d[2]};
+      // Empty space: skip the whole unallocated coarse block, else the fine block (only as the
+      // batch's first sample: a later one ends the batch and starts the next).
+      const int cb[3] = {static_cast<int>(std::floor(p[0] / coarse_edge)),
+                         static_cast<int>(std::floor(p[1] / coarse_edge)),
+                         static_cast<int>(std::floor(p[2] / coarse_edge))};
+      if (cb[0] != coarse_block[0] || cb[1] != coarse_block[1] || cb[2] != coarse_block[2]) {
+        if (field.findBlock(0, cb[0], cb[1], cb[2]) < 0) {
+          if (n == 0) ts = std::max(ts + nudge, cubeExit(ray, p, coarse_edge) + nudge);
+          break;
+        }
+        std::copy(cb, cb + 3, coarse_block);
       }
-      std::copy(cb, cb + 3, coarse_block);
+      float frac[3];
+      moveTo(field, p, &cursor[fine], frac);
+      if (!cursor[fine].corner0) {
+        if (n == 0) ts = std::max(ts + nudge, cubeExit(ray, p, fine_edge) + nudge);
+        break;
+      }
+      float r[C] = {};
+      gatherCell(cursor[fine], frac, r);
+      for (int l = 0; l < fine; ++l) {
+        moveTo(field, p, &cursor[l], frac);
+        gatherCell(cursor[l], frac, r);
+      }
+      for (int ch = 0; ch < C; ++ch) raw[ch][n] = r[ch];
+      tb[n++] = ts;
     }
-    float raw[C];
-    if (!evaluate<C>(field, p, corners, raw, cache)) {
-      t = std::max(t + nudge, cubeExit(ray, p, fine_edge) + nudge);
-      continue;
+    t = ts;
+    if (n == 0) continue;
+    const Lanes sigma = softplus4(bias + Lanes(raw[0])) * scale;
+    const Lanes decay = fastExp4(-sigma * fine_step);
+    Lanes c[3];
+    for (int k = 0; k < 3; ++k) {
+      Lanes x(raw[1 + k]);
+      for (int j = 1; j < NB; ++j) x += Lanes(raw[1 + 3 * j + k]) * basis[j];
+      c[k] = sigmoid4(x);
     }
-    const float step = fine_step;
-    float sp, unused;
-    softplusAndSigmoid(bias + raw[0], &sp, &unused);
-    const float sigma = sp * scale;
-    float c[3];
-    shade<NB>(raw, basis, c);
-    const float decay = fastExp(-sigma * step);
-    const float w = transmit * (1.f - decay);
-    transmit *= decay;
-    s0 += w;
-    s1 += double(w) * t;
-    s2 += double(w) * t * t;
-    for (int k = 0; k < 3; ++k) color[k] += w * c[k];
-    ++samples;
-    t += step;
+    for (int i = 0; i < n; ++i) {
+      if (!(transmit > params.min_transmittance)) {
+        opaque = true;
+        break;
+      }
+      const float w = transmit * (1.f - decay[i]);
+      transmit *= decay[i];
+      s0 += w;
+      s1 += double(w) * tb[i];
+      s2 += double(w) * tb[i] * tb[i];
+      for (int k = 0; k < 3; ++k) color[k] += w * c[k][i];
+      ++samples;
+    }
   }
   const float W = static_cast<float>(s0);
   for (int k = 0; k < 3; ++k) out.color[k] = color[k] + (1.f - W) * bg[k];
@@ -88,9 +262,9 @@ RayOutput marchImpl(const Field& field, const Ray& ray, const MarchParams& param
   out.samples = samples;
   if (params.normalize_depth) {
     if (W >= params.min_weight && W > 0) {
-      const double d = s1 / s0;
-      out.depth = static_cast<float>(d);
-      out.var = static_cast<float>(std::max(0.0, s2 / s0 - d * d));
+      const double dm = s1 / s0;
+      out.depth = static_cast<float>(dm);
+      out.var = static_cast<float>(std::max(0.0, s2 / s0 - dm * dm));
     }
   } else {
     out.depth = static_cast<float>(s1);
@@ -137,29 +311,40 @@ RenderImages VolumeRenderer::render(const Field& field, const SE3& T_world_cam,
   out.depth.create(camera.height, camera.width, CV_32FC1);
   out.sigma.create(camera.height, camera.width, CV_32FC1);
   out.weight.create(camera.height, camera.width, CV_32FC1);
-  auto rows = [&](int r0, int r1) {
-    for (int v = r0; v < r1; ++v) {
-      cv::Vec3f* color = out.color.ptr<cv::Vec3f>(v);
-      float* depth = out.depth.ptr<float>(v);
-      float* sigma = out.sigma.ptr<float>(v);
-      float* weight = out.weight.ptr<float>(v);
-      for (int u = 0; u < camera.width; ++u) {
-        const Eigen::Vector3d cam_dir((u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, 1);
-        const RayOutput r = march(field, makeRay(T_world_cam, cam_dir), params);
-        color[u] = cv::Vec3f(r.color[0], r.color[1], r.color[2]);
-        depth[u] = r.depth;
-        sigma[u] = std::sqrt(std::max(0.f, r.var));
-        weight[u] = r.weight;
+  // Square tiles: neighbouring rays read the same voxels while they are still in cache (row
+  // by row, a ray's cells are evicted before the next row reaches them). Threads take every
+  // threads-th band of tiles; each pixel is independent, so the result does not depend on it.
+  constexpr int kTile = 16;  // pixels
+  const int bands = (camera.height + kTile - 1) / kTile;
+  auto work = [&](int first_band, int band_step) {
+    for (int band = first_band; band < bands; band += band_step) {
+      const int v0 = band * kTile, v1 = std::min(camera.height, v0 + kTile);
+      for (int u0 = 0; u0 < camera.width; u0 += kTile) {
+        const int u1 = std::min(camera.width, u0 + kTile);
+        for (int v = v0; v < v1; ++v) {
+          cv::Vec3f* color = out.color.ptr<cv::Vec3f>(v);
+          float* depth = out.depth.ptr<float>(v);
+          float* sigma = out.sigma.ptr<float>(v);
+          float* weight = out.weight.ptr<float>(v);
+          for (int u = u0; u < u1; ++u) {
+            const Eigen::Vector3d cam_dir((u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy,
+                                          1);
+            const RayOutput r = march(field, makeRay(T_world_cam, cam_dir), params);
+            color[u] = cv::Vec3f(r.color[0], r.color[1], r.color[2]);
+            depth[u] = r.depth;
+            sigma[u] = std::sqrt(std::max(0.f, r.var));
+            weight[u] = r.weight;
+          }
+        }
       }
     }
   };
-  threads = std::clamp(threads, 1, camera.height);
+  threads = std::clamp(threads, 1, bands);
   if (threads == 1) {
-    rows(0, camera.height);
+    work(0, 1);
   } else {
     std::vector<std::thread> pool;
-    for (int k = 0; k < threads; ++k)
-      pool.emplace_back(rows, camera.height * k / threads, camera.height * (k + 1) / threads);
+    for (int k = 0; k < threads; ++k) pool.emplace_back(work, k, threads);
     for (std::thread& th : pool) th.join();
   }
   return out;

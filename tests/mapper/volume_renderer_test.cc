@@ -5,9 +5,13 @@
 #include <algorithm>
 #include <cmath>
 #include <functional>
+#include <string>
+#include <utility>
 #include <vector>
 
 #include <gtest/gtest.h>
+
+#include "mapper/ray_kernels.h"
 
 namespace radslam {
 namespace {
@@ -328,6 +332,173 @@ TEST(FastMath, ExpSoftplusSigmoidMatchLibm) {
   EXPECT_LT(worst_sig, 1e-6);
   EXPECT_EQ(fastExp(-1000.f), fastExp(-87.f));  // clamped, no denormal garbage
   EXPECT_GT(fastExp(-87.f), 0.f);
+}
+
+TEST(FastMath, ExpRoundsTheExponentAsNearbyint) {
+  // fastExp's power of two: the float-adder rounding equals std::nearbyint (ties to even) over
+  // the whole clamped range, including the ties x log2 e = k + 1/2.
+  int checked = 0;
+  for (float y = -126.f; y <= 127.f; y += 0.125f) {
+    const float r = (y + 12582912.f) - 12582912.f;
+    ASSERT_EQ(r, std::nearbyint(y)) << y;
+    ++checked;
+  }
+  EXPECT_GT(checked, 2000);
+  // And exp itself against a copy that rounds with std::nearbyint.
+  for (float x = -90.f; x <= 90.f; x += 0.00731f) {
+    const float xc = std::clamp(x, -87.f, 88.f);
+    const float r = std::nearbyint(xc * 1.44269504089f);
+    const float f = (xc - r * 0.693145751953125f) - r * 1.428606765330187e-06f;
+    float q = 1.f / 720;
+    for (const float c : {1.f / 120, 1.f / 24, 1.f / 6, 0.5f, 1.f, 1.f}) q = q * f + c;
+    ASSERT_EQ(fastExp(x), std::ldexp(q, static_cast<int>(r))) << x;
+  }
+}
+
+// ---- The render-only march against the plain per-sample march it replaces ----
+
+// One sample at a time, every lookup from scratch: the definition the batched, cached march
+// must reproduce bit for bit.
+RayOutput referenceMarch(const Field& field, const Ray& ray, const MarchParams& params,
+                         const Eigen::Vector3f& bg) {
+  using namespace ray_kernels;
+  RayOutput out;
+  const int C = field.channels(), NB = field.colorBasis();
+  float t0, t1;
+  if (!intersectBox(ray, field.boundsMin(), field.boundsMax(), &t0, &t1)) t1 = -1;
+  t0 = std::max(t0, params.near);
+  t1 = std::min(t1, params.far);
+  const int fine = field.numLevels() - 1;
+  const float basis[4] = {1.f, ray.view_dir.x(), ray.view_dir.y(), ray.view_dir.z()};
+  const float step = params.step_fine * static_cast<float>(field.voxelSize(fine));
+  const float coarse_edge = static_cast<float>(field.voxelSize(0)) * Field::kBlockDim;
+  const float fine_edge = static_cast<float>(field.voxelSize(fine)) * Field::kBlockDim;
+  const float nudge = 1e-3f * step;
+  float transmit = 1.f, color[3] = {0, 0, 0};
+  double s0 = 0, s1 = 0, s2 = 0;
+  for (float t = t0; t < t1 && transmit > params.min_transmittance;) {
+    const float p[3] = {ray.origin.x() + t * ray.dir.x(), ray.origin.y() + t * ray.dir.y(),
+                        ray.origin.z() + t * ray.dir.z()};
+    if (field.findBlock(0, static_cast<int>(std::floor(p[0] / coarse_edge)),
+                        static_cast<int>(std::floor(p[1] / coarse_edge)),
+                        static_cast<int>(std::floor(p[2] / coarse_edge))) < 0) {
+      t = std::max(t + nudge, cubeExit(ray, p, coarse_edge) + nudge);
+      continue;
+    }
+    Corners corners[Field::kMaxLevels];
+    locate(field, fine, p, &corners[fine]);
+    if (!(corners[fine].mask & 1u)) {
+      t = std::max(t + nudge, cubeExit(ray, p, fine_edge) + nudge);
+      continue;
+    }
+    float raw[13] = {};
+    for (int i = 0; i < fine + 1; ++i) {
+      const int l = i == 0 ? fine : i - 1;  // fine first, then coarse to fine
+      if (l != fine) locate(field, l, p, &corners[l]);
+      if (C == 4) gather<4>(field.levelData(l), corners[l], raw);
+      if (C == 13) gather<13>(field.levelData(l), corners[l], raw);
+    }
+    const float sigma = softplus(field.densityBias() + raw[0]) * field.densityScale();
+    float c[3];
+    if (NB == 1) shade<1>(raw, basis, c);
+    if (NB == 4) shade<4>(raw, basis, c);
+    const float decay = fastExp(-sigma * step);
+    const float w = transmit * (1.f - decay);
+    transmit *= decay;
+    s0 += w;
+    s1 += double(w) * t;
+    s2 += double(w) * t * t;
+    for (int k = 0; k < 3; ++k) color[k] += w * c[k];
+    ++out.samples;
+    t += step;
+  }
+  const float W = static_cast<float>(s0);
+  for (int k = 0; k < 3; ++k) out.color[k] = color[k] + (1.f - W) * bg[k];
+  out.weight = W;
+  if (params.normalize_depth) {
+    if (W >= params.min_weight && W > 0) {
+      out.depth = static_cast<float>(s1 / s0);
+      out.var = static_cast<float>(std::max(0.0, s2 / s0 - (s1 / s0) * (s1 / s0)));
+    }
+  } else {
+    out.depth = static_cast<float>(s1);
+    out.var = static_cast<float>(std::max(0.0, s2 - s1 * s1 * (2.0 - s0)));
+  }
+  return out;
+}
+
+// A shell of allocated blocks with holes (the fine level is sparser than the coarse ones)
+// and pseudo-random parameters: thin and opaque regions, so that rays skip blocks, cross
+// block borders, saturate and stop.
+Field makeShellField(int levels, int sh_degree) {
+  Field field(FieldGeometry::make(0.03, levels, 2, sh_degree, -4.6f));
+  Rng rng;
+  for (double x = -0.6; x <= 0.6; x += 0.03)
+    for (double y = -0.5; y <= 0.5; y += 0.03)
+      for (double z = 0.8; z <= 1.6; z += 0.03) {
+        const double r = std::hypot(x, y, z - 1.4);
+        if (r > 0.35 && r < 0.55 && rng.uniform() < 0.7f)
+          field.allocateAround(Eigen::Vector3f(x, y, z));
+      }
+  for (int l = 0; l < field.numLevels(); ++l)
+    for (size_t i = 0; i < field.levelSize(l); ++i)
+      field.levelData(l)[i] = (rng.uniform() - 0.5f) * (i % field.channels() == 0 ? 9.f : 4.f);
+  return field;
+}
+
+void expectSameOutput(const RayOutput& a, const RayOutput& b, const std::string& what) {
+  for (int k = 0; k < 3; ++k) EXPECT_EQ(a.color[k], b.color[k]) << what;
+  EXPECT_EQ(a.depth, b.depth) << what;
+  EXPECT_EQ(a.var, b.var) << what;
+  EXPECT_EQ(a.weight, b.weight) << what;
+  EXPECT_EQ(a.samples, b.samples) << what;
+}
+
+TEST(VolumeRenderer, MarchEqualsThePerSampleReferenceBitwise) {
+  CameraModel cam;
+  cam.width = 40;
+  cam.height = 30;
+  cam.fx = cam.fy = 30;
+  cam.cx = 19.5;
+  cam.cy = 14.5;
+  const Eigen::Vector3f bg(0.2f, 0.4f, 0.6f);
+  const VolumeRenderer renderer(bg);
+  MarchParams preview;
+  preview.step_fine = 1;
+  preview.min_transmittance = 0.01f;
+  MarchParams unnormalized;
+  unnormalized.normalize_depth = false;
+  const SE3 poses[] = {SE3(), SE3(SO3::exp(Vec3(0.1, -0.2, 0.05)), Vec3(0.1, 0.05, 1.3)),
+                       SE3(SO3::exp(Vec3(0, 1.4, 0)), Vec3(-1.2, 0.1, 1.2))};
+  int hits = 0, stops = 0;
+  for (const auto& [levels, sh] : {std::pair{2, 0}, {3, 1}, {1, 0}}) {
+    const Field field = makeShellField(levels, sh);
+    for (const MarchParams& params : {MarchParams(), preview, unnormalized}) {
+      for (const SE3& T : poses) {
+        const RenderImages img = renderer.render(field, T, cam, params, 1);
+        const RenderImages img2 = renderer.render(field, T, cam, params, 3);
+        for (int v = 0; v < cam.height; ++v)
+          for (int u = 0; u < cam.width; ++u) {
+            const Ray ray = makeRay(T, Vec3((u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, 1));
+            const RayOutput ref = referenceMarch(field, ray, params, bg);
+            const std::string what = "levels " + std::to_string(levels) + " pixel " +
+                                     std::to_string(u) + "," + std::to_string(v);
+            expectSameOutput(renderer.march(field, ray, params), ref, what);
+            const cv::Vec3f c = img.color.at<cv::Vec3f>(v, u);
+            for (int k = 0; k < 3; ++k) ASSERT_EQ(c[k], ref.color[k]) << what;
+            ASSERT_EQ(img.depth.at<float>(v, u), ref.depth) << what;
+            ASSERT_EQ(img.weight.at<float>(v, u), ref.weight) << what;
+            ASSERT_EQ(img.sigma.at<float>(v, u), std::sqrt(std::max(0.f, ref.var))) << what;
+            ASSERT_EQ(cv::norm(img.color, img2.color, cv::NORM_INF), 0) << "threads differ";
+            hits += ref.samples > 0;
+            stops += ref.weight > 1 - params.min_transmittance - 1e-6f;
+          }
+      }
+    }
+  }
+  // The scenes exercise both rays through the shell and rays stopped in it.
+  EXPECT_GT(hits, 1000);
+  EXPECT_GT(stops, 300);
 }
 
 }  // namespace
