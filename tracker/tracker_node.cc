@@ -17,7 +17,7 @@ double secondsSince(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
 }
 
-constexpr int kKeyframeGapMs = 20;  // between keyframes of one burst (~200 MB/s at most)
+constexpr int kKeyframeGapMs = 50;  // between keyframes of one burst (~40 MB/s at most)
 
 // Warn about the first few of a kind, then every 100th, so a bad stream cannot flood the log.
 bool shouldWarn(int64_t count) { return count <= 5 || count % 100 == 0; }
@@ -244,13 +244,15 @@ void TrackerNode::publish(const TrackerOutput& output) {
   last_stats_ = output.stats;
   try {
     if (output.has_pose) bus_->publish(channel::kPose, output.pose);
+    // The small refreshed poses before the keyframes: a keyframe burst can fill the receivers'
+    // socket buffers, and what arrives behind it is lost.
+    for (const PoseStamped& pose : output.refreshed_poses) bus_->publish(channel::kPose, pose);
     for (size_t k = 0; k < output.keyframes.size(); ++k) {
       // A keyframe is megabytes of UDP fragments: pace bursts so that receivers keep up (a
       // receive buffer overrun loses whole messages).
       if (k > 0) std::this_thread::sleep_for(std::chrono::milliseconds(kKeyframeGapMs));
       bus_->publish(channel::kKeyframe, output.keyframes[k]);
     }
-    for (const PoseStamped& pose : output.refreshed_poses) bus_->publish(channel::kPose, pose);
   } catch (const std::invalid_argument& e) {
     reporter_.setError(e.what());
     std::cerr << "radslam-tracker: warning: cannot publish: " << e.what() << "\n";
