@@ -36,7 +36,9 @@ struct RendererParams {
   bool video = true;          // fly-through video at the end
   int video_width = 320;      // pixels
   double video_fps = 15;
-  int video_max_frames = 150;  // trajectory poses subsampled to at most this many
+  // Trajectory poses subsampled to at most this many (about 0.5 s each at 320 px on one core:
+  // the launcher gives the renderer 120 s to finish).
+  int video_max_frames = 60;
 };
 /// Loads the "renderer" section (unknown keys are errors); *dump/*source for the banner.
 RendererParams loadRendererParams(const std::string& yaml_path,
