@@ -84,6 +84,34 @@ TEST(KeyframeGraph, LoopEdgesAnchorOldKeyframesAsFixedPoses) {
   EXPECT_TRUE(graph.edges().empty());
 }
 
+TEST(KeyframeGraph, DepartedKeyframesCanStayAsAnchorsOfTheirEdges) {
+  const CameraModel grid = gridCamera();
+  KeyframeGraph graph(2, 0, true);
+  for (double x : {0.0, 0.1, 0.2}) graph.add(keyframeAt(x));
+  graph.setEdge(edge(0, 1));
+  graph.setEdge(edge(1, 2));
+  graph.setEdge(edge(2, 0));
+  graph.slideWindow();  // window {1, 2}: 0 leaves; its edges to the window stay, anchored at 0
+  ASSERT_EQ(graph.edges().size(), 3u);
+  EXPECT_EQ(graph.edges()[0].anchor, 0);
+  EXPECT_EQ(graph.edges()[1].anchor, -1);
+  EXPECT_EQ(graph.edges()[2].anchor, 0);
+  std::vector<int> ids;
+  const DenseBaProblem problem = graph.buildProblem(grid, &ids);
+  ASSERT_EQ(problem.keyframes.size(), 3u);
+  EXPECT_TRUE(problem.keyframes[2].fixed_pose);
+  // When 1 leaves, the edge 0 -> 1 goes (its window endpoint left) and 1 -> 2 becomes anchored
+  // at 1; 2 -> 0 stays while 2 is in the window.
+  graph.add(keyframeAt(0.3));
+  graph.slideWindow();
+  ASSERT_EQ(graph.edges().size(), 2u);
+  EXPECT_EQ(graph.edges()[0].anchor, 1);
+  EXPECT_EQ(graph.edges()[1].anchor, 0);
+  // A restarted window keeps no edge.
+  graph.restartWindowAtLast();
+  EXPECT_TRUE(graph.edges().empty());
+}
+
 TEST(KeyframeGraph, RejectsInvalidSizes) {
   EXPECT_THROW(KeyframeGraph(1), std::invalid_argument);
   EXPECT_THROW(KeyframeGraph(4, -1), std::invalid_argument);
