@@ -4,14 +4,16 @@
 //
 /// Per frame: undistort + resize to the working resolution, dense flow from the last keyframe
 /// (warm-started from the pose predicted by constant velocity), motion-only alignment gives the
-/// frame's pose and covariance. When the mean flow to the last keyframe exceeds
-/// keyframe_flow_px (BA grid px) the frame becomes a keyframe: edges to its predecessor and to
-/// overlapping window keyframes (and a loop edge to an older overlapping keyframe outside the
-/// window), then flow_ba_rounds alternations of (flow warm-started from
-/// BA's prediction, BA), then exact marginals; new and changed keyframes are returned.
+/// frame's pose and covariance. When the parallax to the last keyframe exceeds
+/// keyframe_flow_px, the rotation alone exceeds keyframe_rotation_px (BA grid px) or too few
+/// cells are tracked (isNewKeyframe), the frame becomes a keyframe: edges to its predecessor and
+/// to overlapping window keyframes (and a loop edge to an older overlapping keyframe outside the
+/// window), then flow_ba_rounds alternations of (flow warm-started from BA's prediction, BA),
+/// then exact marginals; new and changed keyframes are returned.
 ///
-/// Frames keep their pose relative to their reference keyframe, so finish() re-emits every
-/// frame's pose with the final keyframe poses.
+/// Frames keep their pose relative to their reference keyframe and are aligned again against its
+/// final depths when it leaves the window; finish() re-emits every frame's pose with the final
+/// keyframe poses.
 ///
 /// Monocular initialisation: keyframe 0 gets a constant inverse depth (init_inv_depth, scene
 /// units); frames are aligned against it from frame 1 on; the first BA runs with the second
