@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <charconv>
+#include <cinttypes>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
@@ -66,6 +67,13 @@ void finishWriting(const std::string& path, std::unique_ptr<std::FILE, FileClose
 }
 
 }  // namespace
+
+std::string stampFileName(int64_t utime) {
+  char buffer[48];
+  const int64_t s = utime / 1000000, us = utime % 1000000;
+  std::snprintf(buffer, sizeof(buffer), "%" PRId64 ".%06" PRId64, s, us < 0 ? -us : us);
+  return buffer;
+}
 
 std::string formatDouble(double value) {
   char buffer[64];

@@ -50,6 +50,10 @@ struct NumericRow {
 std::vector<NumericRow> readNumericRows(const std::string& path, size_t columns,
                                         const std::string& what);
 
+/// "<seconds>.<microseconds>" of a sensor time in microseconds: the file stem of everything a
+/// run folder names by a frame's timestamp (keyframe EXR, renders), as in the dataset's clock.
+std::string stampFileName(int64_t utime);
+
 /// Shortest decimal text that parses back to exactly `value`.
 std::string formatDouble(double value);
 

@@ -14,12 +14,6 @@
 
 namespace radslam {
 
-std::string renderStem(int64_t utime) {
-  char buf[64];
-  std::snprintf(buf, sizeof(buf), "%.6f", static_cast<double>(utime) * 1e-6);
-  return buf;
-}
-
 std::vector<FrameView> nonKeyframeViews(const std::map<int64_t, PoseStamped>& poses,
                                         const KeyframeStore& keyframes, int stride) {
   std::vector<FrameView> views;
@@ -54,7 +48,7 @@ void writeRender(const Mapper& mapper, const SE3& T_world_cam, const CameraModel
                  int64_t utime, const std::filesystem::path& rgb_dir,
                  const std::filesystem::path& depth_dir) {
   const RenderImages images = mapper.render(T_world_cam, camera);
-  const std::string stem = renderStem(utime);
+  const std::string stem = stampFileName(utime);
   const std::string png = (rgb_dir / (stem + ".png")).string();
   if (!cv::imwrite(png, toBgr8(images.color)))
     throw std::runtime_error("mapper outputs: cannot write " + png);

@@ -33,9 +33,6 @@ struct MapperOutputSummary {
   size_t cloud_points = 0, mesh_faces = 0;
 };
 
-/// "%.6f" seconds of a sensor time in microseconds: the file stem of a keyframe's renders.
-std::string renderStem(int64_t utime);
-
 /// The frames to render besides the keyframes: of the tracked poses (latest per frame index),
 /// those with frame_index % stride == 0 that are neither flagged as keyframes nor the frame of
 /// a stored keyframe, tracked (not lost or initialising), each with the camera of the stored

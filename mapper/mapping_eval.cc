@@ -109,9 +109,8 @@ TrackerRun readTrackerRun(const std::string& dir) {
   if (keyframes.empty())
     throw std::runtime_error("tracker run " + dir + ": keyframes.txt lists no keyframe");
   for (const StampedPose& p : keyframes) {
-    char stem[64];
-    std::snprintf(stem, sizeof(stem), "%.6f", p.t);
-    const std::string exr = (fs::path(dir) / "keyframes" / (std::string(stem) + ".exr")).string();
+    const std::string stem = stampFileName(std::llround(p.t * 1e6));
+    const std::string exr = (fs::path(dir) / "keyframes" / (stem + ".exr")).string();
     if (!fs::is_regular_file(exr))
       throw std::runtime_error("tracker run " + dir + ": " + exr + " (keyframe depth) is missing");
     TrackerKeyframe kf;

@@ -38,13 +38,6 @@ double valueOf(const Status& status, const std::string& key, double fallback) {
   return fallback;
 }
 
-// Timestamps name files: seconds with 6 decimals, as in the dataset's clock.
-std::string stampName(int64_t utime) {
-  char buffer[64];
-  std::snprintf(buffer, sizeof(buffer), "%.6f", static_cast<double>(utime) * 1e-6);
-  return buffer;
-}
-
 std::string jsonEscape(const std::string& text) {
   std::string out;
   for (char c : text) {
@@ -208,7 +201,7 @@ std::string RunRecorder::exportRun(const std::string& out_dir, double wall_s, in
       if (!keyframe.inv_depth.empty()) channels.emplace_back("inv_depth", keyframe.inv_depth);
       if (!keyframe.inv_depth_var.empty())
         channels.emplace_back("inv_depth_var", keyframe.inv_depth_var);
-      writeExr(out_dir + "/keyframes/" + stampName(keyframe.header.utime) + ".exr", channels);
+      writeExr(out_dir + "/keyframes/" + stampFileName(keyframe.header.utime) + ".exr", channels);
       ++exr_written;
     }
   }

@@ -1,6 +1,5 @@
 #include "renderer/final_outputs.h"
 
-#include <cinttypes>
 #include <cstdio>
 #include <filesystem>
 #include <stdexcept>
@@ -9,15 +8,9 @@
 #include <opencv2/videoio.hpp>
 
 #include "common/exr_io.h"
+#include "common/trajectory.h"
 
 namespace radslam {
-
-std::string timestampName(int64_t utime) {
-  char buf[48];
-  const int64_t s = utime / 1000000, us = utime % 1000000;
-  std::snprintf(buf, sizeof(buf), "%" PRId64 ".%06" PRId64, s, us < 0 ? -us : us);
-  return buf;
-}
 
 CameraModel scaledCamera(const CameraModel& camera, int width) {
   if (width <= 0 || camera.width <= 0) return camera;
@@ -41,7 +34,7 @@ int writeFinalRenders(const FieldReplica& replica, const std::vector<ViewPose>& 
   int written = 0;
   for (const ViewPose& v : views) {
     const RenderImages images = replica.render(v.T_world_cam, v.camera);
-    const std::string stem = dir + "/" + timestampName(v.utime);
+    const std::string stem = dir + "/" + stampFileName(v.utime);
     if (!cv::imwrite(stem + ".png", toBgr8(images.color)))
       throw std::runtime_error(stem + ".png: cannot write the render");
     writeExr(stem + ".exr", {{"depth", images.depth}, {"sigma", images.sigma}});

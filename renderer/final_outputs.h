@@ -18,9 +18,6 @@ struct ViewPose {
   CameraModel camera;
 };
 
-/// "<seconds>.<microseconds>" of a sensor time, the file stem of a render.
-std::string timestampName(int64_t utime);
-
 /// The camera scaled to `width` pixels (same field of view); unchanged when width <= 0.
 CameraModel scaledCamera(const CameraModel& camera, int width);
 

@@ -9,7 +9,6 @@
 #include <fstream>
 #include <iostream>
 
-#include <malloc.h>
 #include <map>
 #include <sstream>
 
@@ -59,12 +58,6 @@ std::string sequenceName(const std::string& spec) {
   return std::filesystem::path(path).filename().string();
 }
 
-std::string stampName(int64_t utime) {
-  char buffer[64];
-  std::snprintf(buffer, sizeof(buffer), "%.6f", static_cast<double>(utime) * 1e-6);
-  return buffer;
-}
-
 /// The recorder's run-folder layout, so that the mapper's benchmark reads either.
 void writeRunFolder(const std::string& dir, const Trajectory& estimate,
                     const std::map<int64_t, Keyframe>& keyframes) {
@@ -75,7 +68,7 @@ void writeRunFolder(const std::string& dir, const Trajectory& estimate,
     keyframe_poses.push_back({static_cast<double>(k.header.utime) * 1e-6, k.T_world_cam});
     cv::Mat sigma;
     cv::sqrt(cv::max(k.depth_var, 0.0), sigma);
-    writeExr(dir + "/keyframes/" + stampName(k.header.utime) + ".exr",
+    writeExr(dir + "/keyframes/" + stampFileName(k.header.utime) + ".exr",
              {{"depth", k.depth}, {"sigma", sigma}});
   }
   if (!keyframes.empty()) {
@@ -230,9 +223,6 @@ int run(int argc, char** argv) {
 }  // namespace radslam
 
 int main(int argc, char** argv) {
-  // Every frame allocates and frees images of a few hundred kB; by default glibc maps them
-  // afresh and the page faults cost ~15% of the tracker's CPU time (measured): keep them.
-  mallopt(M_MMAP_THRESHOLD, 64 << 20);
-  mallopt(M_TRIM_THRESHOLD, 256 << 20);
+  radslam::keepImageAllocationsMapped();
   return radslam::runMain("radslam-bench-tracker", radslam::run, argc, argv);
 }

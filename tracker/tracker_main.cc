@@ -1,8 +1,6 @@
 // radslam-tracker: dense SLAM front end on the bus (CAMERA in; POSE, KEYFRAME, STATUS out).
 #include <iostream>
 
-#include <malloc.h>
-
 #include "common/bus.h"
 #include "common/cli.h"
 #include "tracker/tracker_node.h"
@@ -63,9 +61,6 @@ int run(int argc, char** argv) {
 }  // namespace radslam
 
 int main(int argc, char** argv) {
-  // Every frame allocates and frees images of a few hundred kB; by default glibc maps them
-  // afresh and the page faults cost ~15% of the tracker's CPU time (measured): keep them.
-  mallopt(M_MMAP_THRESHOLD, 64 << 20);
-  mallopt(M_TRIM_THRESHOLD, 256 << 20);
+  radslam::keepImageAllocationsMapped();
   return radslam::runMain("radslam-tracker", radslam::run, argc, argv);
 }

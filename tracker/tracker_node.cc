@@ -1,5 +1,6 @@
 #include "tracker/tracker_node.h"
 
+#include <malloc.h>
 #include <chrono>
 #include <iostream>
 #include <stdexcept>
@@ -101,6 +102,11 @@ void validateTrackerParams(const TrackerParams& p) {
   check(p.resend_rotation_deg >= 0 && p.resend_translation_rel >= 0 && p.resend_inv_depth_rel >= 0,
         "resend tolerances must be >= 0");
   check(p.resend_min_keyframes >= 1, "resend_min_keyframes must be >= 1");
+}
+
+void keepImageAllocationsMapped() {
+  mallopt(M_MMAP_THRESHOLD, 64 << 20);
+  mallopt(M_TRIM_THRESHOLD, 256 << 20);
 }
 
 TrackerParams loadTrackerParams(const std::string& yaml_path,

@@ -12,6 +12,7 @@
 
 #include "common/exr_io.h"
 #include "common/synthetic.h"
+#include "common/trajectory.h"
 #include "mapper/field_io.h"
 #include "mapper/mapper_outputs.h"
 
@@ -145,7 +146,7 @@ TEST(MapperNode, FollowsKeyframesPublishesUpdatesAndWritesOutputs) {
   for (const char* name : {"mapper.ckpt", "map_points.ply", "map_mesh.ply", "mapper_keyframes.txt"})
     EXPECT_TRUE(std::filesystem::exists(out + "/" + name)) << name;
   for (const Keyframe& kf : keyframes) {
-    const std::string stem = renderStem(kf.header.utime);
+    const std::string stem = stampFileName(kf.header.utime);
     EXPECT_TRUE(std::filesystem::exists(out + "/renders/rgb/" + stem + ".png")) << stem;
     const cv::Mat depth = readExrChannel(out + "/renders/depth/" + stem + ".exr", "depth");
     ASSERT_EQ(depth.size(), kf.depth.size());
@@ -153,14 +154,14 @@ TEST(MapperNode, FollowsKeyframesPublishesUpdatesAndWritesOutputs) {
   }
   for (int frame : {10, 20}) {
     const Frame f = scene.frame(frame);
-    const std::string stem = renderStem(f.header.utime);
+    const std::string stem = stampFileName(f.header.utime);
     EXPECT_TRUE(std::filesystem::exists(out + "/renders/rgb/" + stem + ".png")) << stem;
     const cv::Mat depth = readExrChannel(out + "/renders/depth/" + stem + ".exr", "depth");
     ASSERT_EQ(depth.size(), f.depth.size());
     EXPECT_NEAR(depth.at<float>(30, 40), f.depth.at<float>(30, 40), 0.1) << "frame " << frame;
   }
   for (int frame : {5, 30, 40}) {
-    const std::string stem = renderStem(scene.frame(frame).header.utime);
+    const std::string stem = stampFileName(scene.frame(frame).header.utime);
     EXPECT_FALSE(std::filesystem::exists(out + "/renders/rgb/" + stem + ".png")) << frame;
   }
   size_t rendered = 0;
@@ -169,7 +170,7 @@ TEST(MapperNode, FollowsKeyframesPublishesUpdatesAndWritesOutputs) {
     ++rendered;
   }
   EXPECT_EQ(rendered, 5u);  // 3 keyframes + frames 10 and 20
-  EXPECT_EQ(renderStem(1305031102175304), "1305031102.175304");
+  EXPECT_EQ(stampFileName(1305031102175304), "1305031102.175304");
 }
 
 TEST(MapperOutputs, NonKeyframeViewsTakeEveryTenthTrackedFrameWithTheNearestKeyframeCamera) {
