@@ -379,6 +379,7 @@ void validate(const SyntheticConfig& c) {
           "image_noise_sigma must be in [0, 100) grey levels");
   require(c.depth_noise_rel >= 0 && c.depth_noise_rel < 1, "depth_noise_rel must be in [0, 1)");
   require(c.threads >= 1 && c.threads <= 256, "threads must be in 1..256");
+  require(c.fps == 0 || (c.fps >= 1 && c.fps <= 1000), "fps must be 0 (the scene's) or 1..1000");
 }
 
 }  // namespace
@@ -388,7 +389,7 @@ SyntheticScene SyntheticScene::make(const SyntheticConfig& config) {
   SyntheticScene s;
   s.config_ = config;
   s.scene_ = std::make_shared<const synth::SceneData>(
-      synth::buildScene(config.scene, config.seed, config.frames));
+      synth::buildScene(config.scene, config.seed, config.frames, config.fps));
   return s;
 }
 
@@ -422,8 +423,10 @@ SE3 SyntheticScene::rightCameraPose(int frame) const {
 std::vector<ObjectPoseSample> SyntheticScene::objectPoses(int frame) const {
   std::vector<ObjectPoseSample> poses;
   const double t = timestamp(frame);
+  const double t_objects = config_.freeze_objects ? 0.0 : t;
   for (const synth::MovingObject& o : scene_->objects)
-    poses.push_back(ObjectPoseSample{t, o.object_id, o.class_id, synth::objectPose(*scene_, o, t)});
+    poses.push_back(
+        ObjectPoseSample{t, o.object_id, o.class_id, synth::objectPose(*scene_, o, t_objects)});
   return poses;
 }
 
@@ -446,7 +449,8 @@ RenderedView SyntheticScene::render(const SE3& T_world_cam, const CameraModel& c
     throw std::invalid_argument("SyntheticScene::render: bad camera " +
                                 std::to_string(camera.width) + "x" + std::to_string(camera.height) +
                                 " fx " + std::to_string(camera.fx));
-  return Renderer(*scene_, T_world_cam, camera, timestamp(frame)).render(config_.threads);
+  const double t_objects = config_.freeze_objects ? 0.0 : timestamp(frame);
+  return Renderer(*scene_, T_world_cam, camera, t_objects).render(config_.threads);
 }
 
 Frame SyntheticScene::frame(int i) const {
@@ -596,7 +600,8 @@ void generateSyntheticDataset(const SyntheticConfig& config, const std::string& 
        << "radslam-synth"
        << "scene" << config.scene << "frames" << config.frames << "seed"
        << std::to_string(config.seed) << "fps" << scene.fps() << "image_noise_sigma"
-       << config.image_noise_sigma << "depth_noise_rel" << config.depth_noise_rel;
+       << config.image_noise_sigma << "depth_noise_rel" << config.depth_noise_rel
+       << "freeze_objects" << static_cast<int>(config.freeze_objects);
   }
 
   File times = openText(path("times.txt"));

@@ -51,6 +51,8 @@ struct SyntheticConfig {
   double image_noise_sigma = 0;   // Gaussian colour noise, grey levels (0 = none)
   double depth_noise_rel = 0;     // Kinect-like depth noise sigma = depth_noise_rel * z^2 (1/m)
   int threads = 1;                // render threads
+  bool freeze_objects = false;    // moving objects stay where they are at time 0 (a reference)
+  double fps = 0;                 // frame rate, Hz (0 = the scene's: 30 rooms, 10 streets)
 };
 
 /// A rendered view. Images are width x height.

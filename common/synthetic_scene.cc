@@ -335,7 +335,7 @@ Eigen::Quaterniond cameraRotation(double yaw, double pitch, double roll) {
 
 }  // namespace
 
-SceneData buildScene(const std::string& name, uint64_t seed, int frames) {
+SceneData buildScene(const std::string& name, uint64_t seed, int frames, double fps) {
   SceneData s;
   s.name = name;
   s.seed = static_cast<uint32_t>(seed ^ (seed >> 32));
@@ -356,6 +356,7 @@ SceneData buildScene(const std::string& name, uint64_t seed, int frames) {
       addDoor(&b, &s, 100, yawPose(M_PI / 2, Vec3(4.0, -0.2, 0)), 0.9, 2.04, 0.005, 1.35, 7.0,
               b.material(MaterialKind::kDoor, {0.62, 0.38, 0.2}, {0.4, 0.22, 0.1}, 0.45), "wall");
     }
+    if (fps > 0) s.fps = fps;
     return s;
   }
   if (name != "street" && name != "car" && name != "multi" && name != "large")
@@ -363,7 +364,7 @@ SceneData buildScene(const std::string& name, uint64_t seed, int frames) {
                                 "' is unknown (room, street, car, door, multi, large)");
   s.path.kind = CameraPathKind::kStreet;
   s.path.speed = name == "multi" ? 8.0 : (name == "large" ? 10.0 : 12.0);
-  const double duration = std::max(frames - 1, 1) / 10.0;
+  const double duration = std::max(frames - 1, 1) / (fps > 0 ? fps : 10.0);
   buildStreet(&b, &s, streetX(s.path, duration) + 10);
   Rng& rng = b.rng();
   if (name == "car") {
@@ -415,6 +416,7 @@ SceneData buildScene(const std::string& name, uint64_t seed, int frames) {
     s.classes.push_back(semanticClass(kClassCar, "car", true, JointType::kPlanar, "road"));
   if (has_truck)
     s.classes.push_back(semanticClass(kClassTruck, "truck", true, JointType::kPlanar, "road"));
+  if (fps > 0) s.fps = fps;
   return s;
 }
 

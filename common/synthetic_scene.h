@@ -97,8 +97,9 @@ struct SceneData {
 };
 
 /// Builds the named scene ("room", "street", "car", "door", "multi", "large") for a sequence
-/// of `frames` frames. Throws std::invalid_argument on an unknown name.
-SceneData buildScene(const std::string& name, uint64_t seed, int frames);
+/// of `frames` frames at `fps` Hz (0 = the scene's own rate: 30 rooms, 10 streets). Throws
+/// std::invalid_argument on an unknown name.
+SceneData buildScene(const std::string& name, uint64_t seed, int frames, double fps = 0);
 
 /// T_world_cam at time t (s); camera axes x right, y down, z forward.
 SE3 cameraPose(const SceneData& scene, double t);

@@ -20,6 +20,8 @@ const char* kUsage = R"(usage: radslam-synth --scene NAME --out DIR [options]
   --seed S         scene, texture and noise seed (default 1); same seed -> same files
   --noise          add sensor noise (colour sigma 2 grey levels, depth sigma 0.0015 z^2)
   --no-stereo      do not render the right images
+  --freeze-objects moving objects stay at their first pose (the same scene without motion)
+  --fps F          frame rate, Hz (default: the scene's, 30 for rooms, 10 for streets)
   --threads T      render threads (default 1)
 )";
 
@@ -45,6 +47,8 @@ int run(int argc, char** argv) {
     config.depth_noise_rel = 0.0015;
   }
   config.stereo = !cli.getBool("no-stereo", false);
+  config.freeze_objects = cli.getBool("freeze-objects", false);
+  config.fps = cli.getDouble("fps", 0);
   config.threads = cli.getInt("threads", config.threads);
   cli.finish();
   if (out_dir.empty()) throw std::runtime_error("--out is required\n" + cli.usage());

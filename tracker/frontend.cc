@@ -108,6 +108,8 @@ PreparedImage ImagePreparer::prepare(const Frame& frame, bool want_color) const 
     // Nearest neighbour: averaging depths across an edge would invent surfaces.
     out.depth = resample(frame.depth, true);
   }
+  if (!frame.instance.empty()) out.instance = resample(frame.instance, true);
+  if (!frame.class_id.empty()) out.class_id = resample(frame.class_id, true);
   return out;
 }
 
@@ -156,6 +158,14 @@ void validateFrame(const Frame& frame) {
                                   ", expected 32FC1 " + sizeText(cam.width, cam.height));
     }
     if (!finiteAll(frame.depth)) throw std::invalid_argument(where + "depth image has NaN or inf");
+  }
+  for (const auto& [mask, name] :
+       {std::pair<const cv::Mat*, const char*>{&frame.instance, "instance"},
+        {&frame.class_id, "class"}}) {
+    if (!mask->empty() && (mask->type() != CV_16UC1 || mask->size() != frame.color.size())) {
+      throw std::invalid_argument(where + name + " mask is " + describe(*mask) +
+                                  ", expected 16UC1 " + sizeText(cam.width, cam.height));
+    }
   }
 }
 

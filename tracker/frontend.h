@@ -46,6 +46,8 @@ struct PreparedImage {
   cv::Mat color;       // CV_8UC3 (or CV_8UC1 for grey input) working size; only when requested
   cv::Mat right_grey;  // CV_8UC1 working size; stereo input only
   cv::Mat depth;       // CV_32FC1 m, 0 = invalid, working size (nearest neighbour); RGB-D only
+  cv::Mat instance;    // CV_16UC1 working size (nearest neighbour); when the frame has one
+  cv::Mat class_id;    // CV_16UC1 working size (nearest neighbour); when the frame has one
 };
 
 /// Undistorts and resamples frames of one camera to the working resolution. Large downscales
@@ -61,8 +63,8 @@ class ImagePreparer {
   const CameraModel& input() const { return input_; }
   const GridGeometry& geometry() const { return geometry_; }
 
-  /// Grey (always), colour (when want_color), right grey (when the frame has one) and depth
-  /// (when the frame has one). Throws std::invalid_argument naming what is wrong with the
+  /// Grey (always), colour (when want_color), right grey, depth and the instance and class
+  /// masks (each when the frame has it). Throws std::invalid_argument naming what is wrong with the
   /// frame's images (empty, size differs from the camera, unsupported type).
   PreparedImage prepare(const Frame& frame, bool want_color) const;
   /// Colour of a frame already validated by prepare() (done only for keyframes).

@@ -230,4 +230,38 @@ Correspondences flowToCorrespondences(const cv::Mat& grey_a, const cv::Mat& grey
   return out;
 }
 
+cv::Mat gridMovingMask(const cv::Mat& moving, const GridGeometry& geometry) {
+  if (moving.empty()) return {};
+  // INTER_AREA averages each cell's pixels: one moving pixel of 64 still averages above 0.
+  cv::Mat area;
+  cv::resize(moving, area, geometry.gridSize(), 0, 0, cv::INTER_AREA);
+  return area > 0;
+}
+
+void excludeMoving(const cv::Mat& moving_grid_a, const cv::Mat& moving_grid_b, Correspondences* c) {
+  if (moving_grid_a.empty() && moving_grid_b.empty()) return;
+  int valid = 0;
+  for (int v = 0; v < c->weight.rows; ++v) {
+    cv::Vec2f* w = c->weight.ptr<cv::Vec2f>(v);
+    const cv::Vec2f* t = c->target.ptr<cv::Vec2f>(v);
+    for (int u = 0; u < c->weight.cols; ++u) {
+      if (!(w[u][0] > 0 || w[u][1] > 0)) continue;
+      bool moving = !moving_grid_a.empty() && moving_grid_a.at<uint8_t>(v, u);
+      if (!moving && !moving_grid_b.empty() && std::isfinite(t[u][0]) && std::isfinite(t[u][1])) {
+        const int ub = static_cast<int>(std::lround(t[u][0]));
+        const int vb = static_cast<int>(std::lround(t[u][1]));
+        moving = ub >= 0 && vb >= 0 && ub < moving_grid_b.cols && vb < moving_grid_b.rows &&
+                 moving_grid_b.at<uint8_t>(vb, ub);
+      }
+      if (moving) {
+        w[u] = cv::Vec2f(0, 0);
+      } else {
+        ++valid;
+      }
+    }
+  }
+  const int cells = c->weight.rows * c->weight.cols;
+  c->valid_fraction = cells > 0 ? static_cast<double>(valid) / cells : 0;
+}
+
 }  // namespace radslam

@@ -110,4 +110,14 @@ Correspondences flowToCorrespondences(const cv::Mat& grey_a, const cv::Mat& grey
                                       const cv::Mat& structure_a, const GridGeometry& geometry,
                                       const FlowOptions& options);
 
+/// Grid mask (CV_8UC1 grid size, 255 = excluded) of the cells holding any pixel of `moving`
+/// (CV_8UC1 working size, 255 = moving object); empty when `moving` is empty.
+cv::Mat gridMovingMask(const cv::Mat& moving, const GridGeometry& geometry);
+
+/// Keeps moving objects out of camera tracking: zeroes the weight of the correspondences whose
+/// cell is moving in a, or whose target lands in a moving cell of b, and updates
+/// valid_fraction. Either grid mask may be empty (nothing moving).
+void excludeMoving(const cv::Mat& moving_grid_a, const cv::Mat& moving_grid_b,
+                   Correspondences* correspondences);
+
 }  // namespace radslam

@@ -71,6 +71,7 @@ std::vector<int> KeyframeGraph::slideWindow() {
     kf.ba.fixed_pose = true;
     // Of the images only the grey one (and its structure tensor) stays, for loop edges.
     kf.color.release();
+    kf.moving.release();
     kf.right_grey.release();
     kf.gradients.release();
     if (max_kept_images_ > 0) {

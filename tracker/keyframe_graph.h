@@ -21,12 +21,15 @@ namespace radslam {
 struct KeyframeData {
   int id = 0;
   int64_t frame_index = 0;
-  Header header;       // of the frame it was made from (utime = sensor time)
-  cv::Mat color;       // working resolution (released when the keyframe leaves the window)
-  cv::Mat grey;        // CV_8UC1 working resolution (released likewise)
-  cv::Mat structure;   // CV_32FC3 grid: structure tensor of grey (flow confidence)
-  cv::Mat gradients;   // CV_32FC2 working resolution: (gx, gy) of grey (refinement)
-  cv::Mat right_grey;  // CV_8UC1 working resolution, stereo only
+  Header header;        // of the frame it was made from (utime = sensor time)
+  cv::Mat color;        // working resolution (released when the keyframe leaves the window)
+  cv::Mat grey;         // CV_8UC1 working resolution (released likewise)
+  cv::Mat structure;    // CV_32FC3 grid: structure tensor of grey (flow confidence)
+  cv::Mat gradients;    // CV_32FC2 working resolution: (gx, gy) of grey (refinement)
+  cv::Mat right_grey;   // CV_8UC1 working resolution, stereo only
+  cv::Mat moving;       // CV_8UC1 working resolution, 255 = moving object; empty: none (released
+                        // with the colour)
+  cv::Mat moving_grid;  // CV_8UC1 grid: cells of `moving` (tracker/frontend_flow.h)
   /// Pose, BA-grid inverse depth (1/m, monocular: 1/scene unit) and the priors of the last BA.
   DenseBaKeyframe ba;
   /// RGB-D: sensor inverse depth (1/m) and its variance (1/m^2) on the grid; empty otherwise.

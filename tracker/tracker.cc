@@ -11,6 +11,7 @@
 #include "tracker/frontend_depth.h"
 #include "tracker/frontend_refine.h"
 #include "tracker/motion_only.h"
+#include "tracker/object_tracker.h"
 
 namespace radslam {
 namespace {
@@ -38,6 +39,24 @@ struct FrameRecord {
 Mat6 composeCovariance(const Mat6& cov_kf, const SE3& T_kf_frame, const Mat6& cov_rel) {
   const Mat6 Ad = T_kf_frame.inverse().adjoint();
   return Ad * cov_kf * Ad.transpose() + cov_rel;
+}
+
+/// Per-pixel metric depth (CV_32FC1 m, 0 = unknown) from a rectified left -> right flow: the
+/// disparity is -flow.x; rows off by more than a pixel or disparities under half a pixel are
+/// not trusted.
+cv::Mat stereoDepth(const cv::Mat& flow_lr, double fx, double baseline_m) {
+  cv::Mat depth(flow_lr.size(), CV_32FC1, cv::Scalar(0));
+  for (int y = 0; y < flow_lr.rows; ++y) {
+    const cv::Vec2f* f = flow_lr.ptr<cv::Vec2f>(y);
+    float* z = depth.ptr<float>(y);
+    for (int x = 0; x < flow_lr.cols; ++x) {
+      const float disparity = -f[x][0];
+      if (disparity > 0.5f && std::abs(f[x][1]) < 1.f) {
+        z[x] = static_cast<float>(fx * baseline_m / disparity);
+      }
+    }
+  }
+  return depth;
 }
 
 }  // namespace
@@ -68,9 +87,11 @@ struct Tracker::Impl {
   PoseStamped poseMessage(const FrameRecord& r) const;
 
   /// Grid correspondences a -> b from the flows (confidence from both), refined per cell.
+  /// Cells on moving objects (grid masks, may be empty) get no weight.
   Correspondences correspond(const cv::Mat& grey_a, const cv::Mat& gradients_a,
                              const cv::Mat& structure_a, const cv::Mat& grey_b,
-                             const cv::Mat& flow_ab, const cv::Mat& flow_ba) const;
+                             const cv::Mat& flow_ab, const cv::Mat& flow_ba,
+                             const cv::Mat& moving_grid_a, const cv::Mat& moving_grid_b) const;
 
   // Keyframe pairs, BA and output.
   /// Flow a -> b and b -> a warm-started from the current estimate, as correspondences.
@@ -119,6 +140,13 @@ struct Tracker::Impl {
     cv::Mat target, weight;
   };
   std::vector<PendingFrame> pending_frames;
+  /// Moving objects: null until the first frame (it needs the working camera) or when
+  /// dynamic_objects is off. moving / moving_grid: the frame being processed (empty: nothing
+  /// moves).
+  std::unique_ptr<ObjectTracker> objects;
+  cv::Mat moving, moving_grid;
+  /// The frame's objects from its depth (sensor or stereo) and its final pose.
+  ObjectList trackObjects(const Frame& frame, const PreparedImage& image, const SE3& T_world_cam);
   /// Aligns the pending frames again; with `leaving`, only those of these keyframes, which are
   /// then dropped.
   void realignFrames(const std::vector<int>* leaving);
@@ -215,8 +243,19 @@ TrackerOutput Tracker::process(const Frame& frame) {
                                 " fx=" + std::to_string(c.fx) + "); one tracker, one camera");
   }
   const PreparedImage image = (preparer ? *preparer : *s.preparer).prepare(frame, false);
-  if (preparer) s.preparer = std::move(preparer);
+  if (preparer) {
+    s.preparer = std::move(preparer);
+    if (params_.dynamic_objects) {
+      ObjectTrackerParams object_params;
+      object_params.classes = parseDynamicClasses(params_.dynamic_classes);
+      object_params.stride = params_.object_stride;
+      s.objects = std::make_unique<ObjectTracker>(object_params, s.preparer->geometry().working,
+                                                  s.flow_options);
+    }
+  }
   if (mode_ == TrackerMode::kStereo && s.baseline_m == 0) s.baseline_m = frame.baseline_m;
+  s.moving = s.objects ? s.objects->movingMask(image.instance, image.class_id) : cv::Mat();
+  s.moving_grid = gridMovingMask(s.moving, s.preparer->geometry());
 
   TrackerOutput out;
   s.stats.ba_ms = 0;
@@ -227,6 +266,10 @@ TrackerOutput Tracker::process(const Frame& frame) {
     s.track(frame, image, &out);
   }
   out.has_pose = true;
+  if (s.objects && !image.class_id.empty()) {
+    out.has_objects = true;
+    out.objects = s.trackObjects(frame, image, out.pose.T_world_cam);
+  }
   ++s.stats.frames;
   s.stats.keyframes = s.graph.size();
   s.stats.window_size = static_cast<int>(s.graph.windowIds().size());
@@ -298,6 +341,8 @@ KeyframeData Tracker::Impl::newKeyframeData(const Frame& frame, const PreparedIm
   kf.gradients = imageGradients(image.grey);
   kf.structure = cellStructureTensor(kf.gradients, g.cell);
   kf.right_grey = image.right_grey;
+  kf.moving = moving;
+  kf.moving_grid = moving_grid;
   kf.ba.T_world_cam = T_world_cam;
   if (mode == TrackerMode::kRgbd) {
     const cv::Mat z = sensorDepthToGrid(image.depth, g.cell, p.depth_min_cell_fraction,
@@ -330,8 +375,8 @@ void Tracker::Impl::track(const Frame& frame, const PreparedImage& image, Tracke
   TrackedFlow tracked;
   tracked.forward = forward;
   tracked.backward = backward;
-  tracked.correspondences =
-      correspond(ref.grey, ref.gradients, ref.structure, image.grey, forward, backward);
+  tracked.correspondences = correspond(ref.grey, ref.gradients, ref.structure, image.grey, forward,
+                                       backward, ref.moving_grid, moving_grid);
   const Correspondences& c = tracked.correspondences;
   stats.flow_ms += msSince(t_flow);
   stats.valid_fraction = c.valid_fraction;
@@ -410,6 +455,27 @@ void Tracker::Impl::realignFrames(const std::vector<int>* leaving) {
     if (!leaving) kept.push_back(std::move(f));
   }
   pending_frames = std::move(kept);
+}
+
+ObjectList Tracker::Impl::trackObjects(const Frame& frame, const PreparedImage& image,
+                                       const SE3& T_world_cam) {
+  ObjectFrame f;
+  f.header = frame.header;
+  f.frame_index = frame.frame_index;
+  f.grey = image.grey;
+  f.instance = image.instance;
+  f.class_id = image.class_id;
+  f.T_world_cam = T_world_cam;
+  if (mode == TrackerMode::kRgbd) {
+    f.depth = image.depth;
+  } else if (mode == TrackerMode::kStereo && !moving.empty()) {
+    // Per-frame depth only where something moves: one more flow, left to right.
+    const auto t_flow = Clock::now();
+    f.depth = stereoDepth(flow.compute(image.grey, image.right_grey),
+                          preparer->geometry().working.fx, baseline_m);
+    stats.flow_ms += msSince(t_flow);
+  }
+  return objects->track(f);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -497,8 +563,9 @@ void Tracker::Impl::makeKeyframe(const Frame& frame, const PreparedImage& image,
         // The frame's own flows against its reference keyframe are this pair's first measure.
         const KeyframeData& k = graph.keyframe(id);
         const KeyframeData& ref = graph.keyframe(m);
-        const Correspondences back = correspond(k.grey, k.gradients, k.structure, ref.grey,
-                                                tracked->backward, tracked->forward);
+        const Correspondences back =
+            correspond(k.grey, k.gradients, k.structure, ref.grey, tracked->backward,
+                       tracked->forward, k.moving_grid, ref.moving_grid);
         graph.setEdge(GraphEdge{m, id, tracked->correspondences.target,
                                 tracked->correspondences.weight, std::nullopt});
         graph.setEdge(GraphEdge{id, m, back.target, back.weight, std::nullopt});
@@ -535,13 +602,16 @@ void Tracker::Impl::makeKeyframe(const Frame& frame, const PreparedImage& image,
 
 Correspondences Tracker::Impl::correspond(const cv::Mat& grey_a, const cv::Mat& gradients_a,
                                           const cv::Mat& structure_a, const cv::Mat& grey_b,
-                                          const cv::Mat& flow_ab, const cv::Mat& flow_ba) const {
+                                          const cv::Mat& flow_ab, const cv::Mat& flow_ba,
+                                          const cv::Mat& moving_grid_a,
+                                          const cv::Mat& moving_grid_b) const {
   const GridGeometry& g = preparer->geometry();
   Correspondences c =
       flowToCorrespondences(grey_a, grey_b, flow_ab, flow_ba, structure_a, g, flow_options);
   if (p.refine_iterations > 0) {
     refineTargets(grey_a, gradients_a, grey_b, g.cell, refine_options, &c.target, &c.weight);
   }
+  excludeMoving(moving_grid_a, moving_grid_b, &c);
   return c;
 }
 
@@ -559,8 +629,10 @@ std::pair<Correspondences, Correspondences> Tracker::Impl::measureBothWays(int a
   auto gradients = [](const KeyframeData& k) {
     return k.gradients.empty() ? imageGradients(k.grey) : k.gradients;
   };
-  return {correspond(ka.grey, gradients(ka), ka.structure, kb.grey, f_ab, f_ba),
-          correspond(kb.grey, gradients(kb), kb.structure, ka.grey, f_ba, f_ab)};
+  return {correspond(ka.grey, gradients(ka), ka.structure, kb.grey, f_ab, f_ba, ka.moving_grid,
+                     kb.moving_grid),
+          correspond(kb.grey, gradients(kb), kb.structure, ka.grey, f_ba, f_ab, kb.moving_grid,
+                     ka.moving_grid)};
 }
 
 void Tracker::Impl::measurePair(int a, int b) {
@@ -593,7 +665,9 @@ void Tracker::Impl::measureStereo(int id) {
   const cv::Mat f_lr = flow.compute(k.grey, k.right_grey, init);
   const cv::Mat f_rl =
       flow.compute(k.right_grey, k.grey, init.empty() ? cv::Mat() : cv::Mat(-init));
-  const Correspondences c = correspond(k.grey, k.gradients, k.structure, k.right_grey, f_lr, f_rl);
+  // The right image's objects are where the left one's are, give or take the disparity.
+  const Correspondences c = correspond(k.grey, k.gradients, k.structure, k.right_grey, f_lr, f_rl,
+                                       k.moving_grid, k.moving_grid);
   graph.setEdge(GraphEdge{id, -1, c.target, c.weight, T_left_right});
 }
 
@@ -686,6 +760,7 @@ Keyframe Tracker::Impl::keyframeMessage(int id) {
   msg.covariance = k.covariance;
   msg.camera = g.working;
   msg.color = k.color;
+  msg.dynamic_mask = k.moving;
   cv::Mat var = k.inv_depth_var;
   if (var.empty()) {
     var = cv::Mat(k.ba.inv_depth.size(), CV_32FC1,

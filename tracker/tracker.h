@@ -125,6 +125,15 @@ struct TrackerParams {
   double lost_min_contrast = 2.0;
   int lost_reinit_frames = 5;  // consecutive lost frames before re-initialising
 
+  // Moving objects (tracker/object_tracker.h): pixels of moving objects stay out of camera
+  // tracking and of the keyframes' static map (Keyframe::dynamic_mask), and each object gets a
+  // pose and a twist under its joint where depth is available (RGB-D, stereo). Class table
+  // "ID:JOINT[:PARENT],...": the default is the synthetic generator's (car and truck planar on
+  // the road, door revolute in the wall). Frames without class masks are not affected.
+  bool dynamic_objects = true;
+  std::string dynamic_classes = "10:planar:1,11:revolute:2,12:planar:1";
+  int object_stride = 2;  // working px between an object's sample points
+
   // Keyframe output (KEYFRAME messages at working resolution).
   double upsample_sigma_range = 12.0;  // grey levels
   double resend_rotation_deg = 0.1;
@@ -162,6 +171,9 @@ struct TrackerOutput {
   std::vector<Keyframe> keyframes;
   /// finish() only: every frame's pose recomputed from its reference keyframe's final pose.
   std::vector<PoseStamped> refreshed_poses;
+  /// The frame's moving objects (when it has class masks and dynamic_objects is on).
+  bool has_objects = false;
+  ObjectList objects;
   TrackerStats stats;
 };
 

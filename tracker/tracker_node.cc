@@ -8,6 +8,7 @@
 
 #include "common/cli.h"
 #include "common/params.h"
+#include "tracker/object_tracker.h"
 
 namespace radslam {
 namespace {
@@ -102,6 +103,8 @@ void validateTrackerParams(const TrackerParams& p) {
   check(p.resend_rotation_deg >= 0 && p.resend_translation_rel >= 0 && p.resend_inv_depth_rel >= 0,
         "resend tolerances must be >= 0");
   check(p.resend_min_keyframes >= 1, "resend_min_keyframes must be >= 1");
+  check(p.object_stride >= 1, "object_stride must be >= 1");
+  parseDynamicClasses(p.dynamic_classes);  // throws naming the bad item
 }
 
 void keepImageAllocationsMapped() {
@@ -171,6 +174,9 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("resend_translation_rel", &p.resend_translation_rel);
   r.get("resend_inv_depth_rel", &p.resend_inv_depth_rel);
   r.get("resend_min_keyframes", &p.resend_min_keyframes);
+  r.get("dynamic_objects", &p.dynamic_objects);
+  r.get("dynamic_classes", &p.dynamic_classes);
+  r.get("object_stride", &p.object_stride);
   r.finish();
   try {
     validateTrackerParams(p);
@@ -250,6 +256,7 @@ void TrackerNode::publish(const TrackerOutput& output) {
   last_stats_ = output.stats;
   try {
     if (output.has_pose) bus_->publish(channel::kPose, output.pose);
+    if (output.has_objects) bus_->publish(channel::kObjects, output.objects);
     // The small refreshed poses before the keyframes: a keyframe burst can fill the receivers'
     // socket buffers, and what arrives behind it is lost.
     for (const PoseStamped& pose : output.refreshed_poses) bus_->publish(channel::kPose, pose);

@@ -1,0 +1,181 @@
+#include "tracker/object_tracker.h"
+
+#include <cmath>
+#include <map>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "common/evaluation.h"
+#include "common/synthetic.h"
+#include "tracker/frontend.h"
+#include "tracker/object_synthetic.h"
+#include "tracker/tracker.h"
+
+namespace radslam {
+namespace {
+
+TEST(DynamicClasses, ParsesTheClassTable) {
+  const std::vector<DynamicClass> classes =
+      parseDynamicClasses(" 10:planar:1, 11:revolute:2 ,12:free");
+  ASSERT_EQ(classes.size(), 3u);
+  EXPECT_EQ(classes[0].class_id, 10);
+  EXPECT_EQ(classes[0].joint, JointType::kPlanar);
+  EXPECT_EQ(classes[0].parent_class, 1);
+  EXPECT_EQ(classes[1].joint, JointType::kRevolute);
+  EXPECT_EQ(classes[2].joint, JointType::kFree);
+  EXPECT_EQ(classes[2].parent_class, -1);
+  EXPECT_TRUE(parseDynamicClasses("").empty());
+}
+
+TEST(DynamicClasses, RejectsBadItemsNamingThem) {
+  for (const char* bad : {"10", "10:sliding", "10:planar", "x:free", "0:free", "10:free:10",
+                          "10:free,10:planar:1", "10:planar:11,11:free", "10:free:2:3"}) {
+    try {
+      parseDynamicClasses(bad);
+      ADD_FAILURE() << "accepted '" << bad << "'";
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find("dynamic class"), std::string::npos) << e.what();
+    }
+  }
+}
+
+TEST(ExcludeMoving, ZeroesCellsOnMovingObjectsAtEitherEnd) {
+  const cv::Size grid(4, 3);
+  Correspondences c;
+  c.target.create(grid, CV_32FC2);
+  c.weight = cv::Mat(grid, CV_32FC2, cv::Scalar(1, 1));
+  for (int v = 0; v < grid.height; ++v)
+    for (int u = 0; u < grid.width; ++u) c.target.at<cv::Vec2f>(v, u) = cv::Vec2f(u + 1, v);
+  cv::Mat moving_a(grid, CV_8UC1, cv::Scalar(0)), moving_b(grid, CV_8UC1, cv::Scalar(0));
+  moving_a.at<uint8_t>(0, 0) = 255;  // source cell (0, 0) moves
+  moving_b.at<uint8_t>(2, 3) = 255;  // (2, 2) lands on it in b
+  excludeMoving(moving_a, moving_b, &c);
+  for (int v = 0; v < grid.height; ++v) {
+    for (int u = 0; u < grid.width; ++u) {
+      const bool excluded = (v == 0 && u == 0) || (v == 2 && u == 2);
+      EXPECT_EQ(c.weight.at<cv::Vec2f>(v, u)[0] == 0, excluded) << u << "," << v;
+    }
+  }
+  EXPECT_NEAR(c.valid_fraction, 10.0 / 12.0, 1e-12);
+}
+
+TEST(GridMovingMask, MarksEveryCellTouchingAMovingPixel) {
+  CameraModel working;
+  working.width = 32;
+  working.height = 16;
+  working.fx = working.fy = 20;
+  working.cx = 15.5;
+  working.cy = 7.5;
+  const GridGeometry g = makeGridGeometry(working, 8);
+  cv::Mat moving(16, 32, CV_8UC1, cv::Scalar(0));
+  moving.at<uint8_t>(9, 17) = 255;  // one pixel of cell (2, 1)
+  const cv::Mat grid = gridMovingMask(moving, g);
+  ASSERT_EQ(grid.size(), cv::Size(4, 2));
+  EXPECT_EQ(cv::countNonZero(grid), 1);
+  EXPECT_EQ(grid.at<uint8_t>(1, 2), 255);
+  EXPECT_TRUE(gridMovingMask(cv::Mat(), g).empty());
+}
+
+// The door scene (a door turning on its hinge in a room) at 320x240 with sensor noise.
+struct DoorSequence {
+  static constexpr int kFrames = 60;
+  SyntheticScene scene;
+  std::vector<Frame> frames;
+  DoorSequence() : scene(SyntheticScene::make(config())) {
+    for (int i = 0; i < kFrames; ++i) frames.push_back(scene.frame(i));
+  }
+  static SyntheticConfig config() {
+    SyntheticConfig c;
+    c.scene = "door";
+    c.width = 320;
+    c.height = 240;
+    c.frames = kFrames;
+    c.stereo = false;
+    c.image_noise_sigma = 2;
+    c.depth_noise_rel = 0.0015;
+    return c;
+  }
+};
+
+const DoorSequence& door() {
+  static const DoorSequence sequence;
+  return sequence;
+}
+
+TEST(TrackerWithObjects, DoorIsMaskedAndTrackedWithItsHinge) {
+  const DoorSequence& seq = door();
+  TrackerParams params;
+  params.mode = "rgbd";
+  Tracker tracker(params);
+  std::map<int64_t, ObjectList> objects;
+  int masked_keyframes = 0;
+  for (const Frame& f : seq.frames) {
+    const TrackerOutput out = tracker.process(f);
+    ASSERT_TRUE(out.has_objects);
+    objects[out.objects.frame_index] = out.objects;
+    for (const Keyframe& kf : out.keyframes) {
+      if (kf.dynamic_mask.empty()) continue;
+      ++masked_keyframes;
+      EXPECT_EQ(kf.dynamic_mask.size(), kf.color.size());
+      EXPECT_GT(cv::countNonZero(kf.dynamic_mask), 0);
+    }
+  }
+  EXPECT_GT(masked_keyframes, 0);
+
+  // Object motion error per frame, the tracker's world mapped to the truth's by the first pose.
+  const SE3 A = seq.scene.cameraPose(0);
+  const int door_id = seq.scene.objects().at(0).object_id;
+  double sum_t = 0, sum_r = 0;
+  int pairs = 0;
+  bool revolute = false;
+  for (int i = 0; i + 1 < DoorSequence::kFrames; ++i) {
+    const TrackedObject *a = nullptr, *b = nullptr;
+    for (const TrackedObject& o : objects[i].objects)
+      if (o.object_id == door_id) a = &o;
+    for (const TrackedObject& o : objects[i + 1].objects)
+      if (o.object_id == door_id) b = &o;
+    if (!a || !b || b->covariance(0, 0) >= 1e6) continue;
+    revolute |= b->joint_type == JointType::kRevolute;
+    const SE3 M_est = A * (b->T_world_object * a->T_world_object.inverse()) * A.inverse();
+    SE3 T_world_object;
+    for (const ObjectPoseSample& s : seq.scene.objectPoses(i))
+      if (s.object_id == door_id) T_world_object = s.T_world_object;
+    const MotionError e = objectMotionError(
+        M_est, syntheticObjectMotion(seq.scene, door_id, i, i + 1), T_world_object);
+    sum_t += e.translation;
+    sum_r += e.rotation;
+    ++pairs;
+  }
+  ASSERT_GT(pairs, DoorSequence::kFrames / 2);
+  EXPECT_TRUE(revolute) << "the hinge was never estimated";
+  // Door motion: up to about 2 deg and 3 cm per frame; measured 0.5-1 deg error with a free
+  // joint before the hinge is known.
+  EXPECT_LT(sum_t / pairs, 0.03);
+  EXPECT_LT(sum_r / pairs * 180 / M_PI, 1.5);
+}
+
+TEST(TrackerWithObjects, MaskingTheDoorImprovesTheCamera) {
+  const DoorSequence& seq = door();
+  Trajectory truth;
+  for (int i = 0; i < DoorSequence::kFrames; ++i)
+    truth.push_back({seq.scene.timestamp(i), seq.scene.cameraPose(i)});
+  auto ate = [&](bool dynamic_objects) {
+    TrackerParams params;
+    params.mode = "rgbd";
+    params.dynamic_objects = dynamic_objects;
+    Tracker tracker(params);
+    for (const Frame& f : seq.frames) tracker.process(f);
+    Trajectory estimate;
+    for (const PoseStamped& p : tracker.finish().refreshed_poses)
+      estimate.push_back({p.header.utime * 1e-6, p.T_world_cam});
+    return evaluateTrajectory(estimate, truth, "se3").ate_rmse_m;
+  };
+  const double with = ate(true), without = ate(false);
+  RecordProperty("ate_with_m", std::to_string(with));
+  RecordProperty("ate_without_m", std::to_string(without));
+  EXPECT_LT(with, without);
+}
+
+}  // namespace
+}  // namespace radslam

@@ -1,0 +1,308 @@
+#include "tracker/object_tracker.h"
+
+#include <algorithm>
+#include <cmath>
+#include <set>
+#include <sstream>
+#include <stdexcept>
+#include <utility>
+
+#include "common/camera.h"
+
+namespace radslam {
+
+std::vector<DynamicClass> parseDynamicClasses(const std::string& spec) {
+  std::vector<DynamicClass> classes;
+  std::set<int> seen;
+  std::stringstream items(spec);
+  std::string item;
+  while (std::getline(items, item, ',')) {
+    item.erase(0, item.find_first_not_of(" \t"));
+    item.erase(item.find_last_not_of(" \t") + 1);
+    if (item.empty()) continue;
+    const std::string where = "dynamic class '" + item + "': ";
+    std::vector<std::string> fields;
+    std::stringstream parts(item);
+    std::string field;
+    while (std::getline(parts, field, ':')) fields.push_back(field);
+    if (fields.size() < 2 || fields.size() > 3)
+      throw std::invalid_argument(where + "expected ID:JOINT[:PARENT]");
+    auto parseId = [&](const std::string& text, const char* what) {
+      size_t used = 0;
+      int id = 0;
+      try {
+        id = std::stoi(text, &used);
+      } catch (const std::exception&) {
+        used = 0;
+      }
+      if (used != text.size() || used == 0 || id < 1 || id > 65535)
+        throw std::invalid_argument(where + what + " must be an integer in 1..65535");
+      return id;
+    };
+    DynamicClass dc;
+    dc.class_id = parseId(fields[0], "the class id");
+    if (fields[1] == "free") {
+      dc.joint = JointType::kFree;
+    } else if (fields[1] == "planar") {
+      dc.joint = JointType::kPlanar;
+    } else if (fields[1] == "revolute") {
+      dc.joint = JointType::kRevolute;
+    } else {
+      throw std::invalid_argument(where + "joint must be free, planar or revolute");
+    }
+    if (fields.size() == 3) dc.parent_class = parseId(fields[2], "the parent class id");
+    if (dc.joint == JointType::kPlanar && dc.parent_class < 0)
+      throw std::invalid_argument(where + "a planar joint needs the parent class whose plane");
+    if (dc.parent_class == dc.class_id)
+      throw std::invalid_argument(where + "a class cannot be its own parent");
+    if (!seen.insert(dc.class_id).second) throw std::invalid_argument(where + "class listed twice");
+    classes.push_back(dc);
+  }
+  for (const DynamicClass& dc : classes) {
+    if (dc.parent_class >= 0 && seen.count(dc.parent_class))
+      throw std::invalid_argument("dynamic class " + std::to_string(dc.class_id) +
+                                  ": its parent class " + std::to_string(dc.parent_class) +
+                                  " is dynamic; parents are static");
+  }
+  return classes;
+}
+
+namespace {
+
+void checkMask(const cv::Mat& mask, const char* name, const CameraModel& camera) {
+  if (mask.empty()) return;
+  if (mask.type() != CV_16UC1 || mask.cols != camera.width || mask.rows != camera.height) {
+    throw std::invalid_argument(std::string("object tracker: ") + name +
+                                " mask must be CV_16UC1 of the working size " +
+                                std::to_string(camera.width) + "x" + std::to_string(camera.height));
+  }
+}
+
+}  // namespace
+
+ObjectTracker::ObjectTracker(ObjectTrackerParams params, const CameraModel& camera,
+                             const FlowOptions& flow_options)
+    : params_(std::move(params)), camera_(camera), flow_(flow_options) {
+  validateCamera(camera_);
+  if (params_.stride < 1 || params_.min_points < params_.tracking.min_points ||
+      !(params_.max_depth_m > 0) || params_.hinge_min_motions < 2 ||
+      !(params_.hinge_min_angle > 0) || !(params_.static_speed >= 0) ||
+      !(params_.static_angular_speed >= 0) || params_.static_frames < 1) {
+    throw std::invalid_argument(
+        "object tracker: need stride >= 1, min_points >= tracking.min_points, max_depth_m > 0, "
+        "hinge_min_motions >= 2, hinge_min_angle > 0, static speeds >= 0, static_frames >= 1");
+  }
+}
+
+const DynamicClass* ObjectTracker::dynamicClass(int class_id) const {
+  for (const DynamicClass& dc : params_.classes)
+    if (dc.class_id == class_id) return &dc;
+  return nullptr;
+}
+
+std::map<int, ObjectTracker::InstanceInfo> ObjectTracker::dynamicInstances(
+    const cv::Mat& instance, const cv::Mat& class_id) const {
+  std::map<int, InstanceInfo> out;
+  if (instance.empty() || class_id.empty()) return out;
+  for (int y = 0; y < instance.rows; ++y) {
+    const uint16_t* ids = instance.ptr<uint16_t>(y);
+    const uint16_t* cls = class_id.ptr<uint16_t>(y);
+    for (int x = 0; x < instance.cols; ++x) {
+      if (ids[x] == 0 || !dynamicClass(cls[x])) continue;
+      InstanceInfo& info = out[ids[x]];
+      info.class_id = cls[x];
+      ++info.pixels;
+    }
+  }
+  return out;
+}
+
+cv::Mat ObjectTracker::movingMask(const cv::Mat& instance, const cv::Mat& class_id) const {
+  checkMask(instance, "instance", camera_);
+  checkMask(class_id, "class", camera_);
+  if (class_id.empty() || params_.classes.empty()) return {};
+  cv::Mat mask(class_id.size(), CV_8UC1, cv::Scalar(0));
+  bool any = false;
+  for (int y = 0; y < class_id.rows; ++y) {
+    const uint16_t* cls = class_id.ptr<uint16_t>(y);
+    const uint16_t* ids = instance.empty() ? nullptr : instance.ptr<uint16_t>(y);
+    uint8_t* m = mask.ptr<uint8_t>(y);
+    for (int x = 0; x < class_id.cols; ++x) {
+      if (!dynamicClass(cls[x])) continue;
+      if (ids) {
+        // Without an instance id a pixel of a dynamic class cannot be proven still.
+        const auto it = objects_.find(ids[x]);
+        if (ids[x] != 0 && it != objects_.end() && it->second.is_static) continue;
+      }
+      m[x] = 255;
+      any = true;
+    }
+  }
+  return any ? mask : cv::Mat();
+}
+
+std::vector<Vec3> ObjectTracker::objectPoints(const ObjectFrame& frame, int instance_id) const {
+  std::vector<Vec3> points;
+  for (int y = 0; y < frame.depth.rows; y += params_.stride) {
+    for (int x = 0; x < frame.depth.cols; x += params_.stride) {
+      const float z = frame.depth.at<float>(y, x);
+      if (frame.instance.at<uint16_t>(y, x) != instance_id || !(z > 0) || z > params_.max_depth_m)
+        continue;
+      points.push_back(frame.T_world_cam * unproject(camera_, Eigen::Vector2d(x, y), z));
+    }
+  }
+  return points;
+}
+
+bool ObjectTracker::estimateJoint(const DynamicClass& dc, const ObjectFrame& frame,
+                                  const std::vector<Vec3>& points_world, Joint* joint) const {
+  Vec3 centroid = Vec3::Zero();
+  for (const Vec3& p : points_world) centroid += p;
+  centroid /= static_cast<double>(points_world.size());
+  *joint = Joint(JointType::kFree, SE3(SO3(), centroid));
+  if (dc.joint == JointType::kFree) return true;
+  if (dc.joint == JointType::kRevolute) return false;  // the hinge comes from the motion
+  // Planar: the parent plane by RANSAC on the parent class's pixels of this frame.
+  std::vector<Vec3> parent;
+  const int step = 2 * params_.stride;
+  for (int y = 0; y < frame.depth.rows; y += step) {
+    for (int x = 0; x < frame.depth.cols; x += step) {
+      const float z = frame.depth.at<float>(y, x);
+      if (frame.class_id.at<uint16_t>(y, x) != dc.parent_class || !(z > 0) ||
+          z > params_.max_depth_m)
+        continue;
+      parent.push_back(frame.T_world_cam * unproject(camera_, Eigen::Vector2d(x, y), z));
+    }
+  }
+  if (static_cast<int>(parent.size()) < std::max(3, params_.plane.min_inliers)) return false;
+  try {
+    const PlaneFit fit = fitPlaneRansac(parent, params_.plane);
+    // Up = against the camera's y axis (image down): the plane normal points away from the
+    // ground side, so that the joint frame does not flip between objects.
+    const Vec3 up = -(frame.T_world_cam.rotation() * Vec3::UnitY());
+    *joint = Joint(JointType::kPlanar, planeJointFrame(fit.plane, centroid, up));
+    return true;
+  } catch (const std::invalid_argument&) {
+    return false;
+  }
+}
+
+void ObjectTracker::updateObject(ObjectState* state, const DynamicClass& dc,
+                                 const ObjectFrame& frame,
+                                 const std::vector<ObjectCorrespondence>& correspondences,
+                                 double dt) {
+  const JointVector* initial =
+      state->last_theta.size() == state->joint.dof() ? &state->last_theta : nullptr;
+  const ObjectMotionEstimate est =
+      trackObjectMotion(state->joint, camera_, previous_.T_world_cam, frame.T_world_cam,
+                        correspondences, dt, params_.tracking, initial);
+  applyObjectMotion(est, state->joint, &state->object);
+  state->last_theta = est.theta;
+  if (dc.joint == JointType::kRevolute && !state->joint_final) {
+    // Free-tracked motions since the first frame give the hinge once they turn enough.
+    state->motions.push_back(state->object.T_world_object * state->T_world_object_first.inverse());
+    if (static_cast<int>(state->motions.size()) >= params_.hinge_min_motions) {
+      try {
+        const Hinge hinge = hingeFromMotions(state->motions, params_.hinge_min_angle);
+        state->joint = Joint(JointType::kRevolute, hingeJointFrame(hinge));
+        state->joint_final = true;
+        state->last_theta = JointVector();
+      } catch (const std::invalid_argument&) {
+        // Not enough rotation yet.
+      }
+    }
+  }
+  const Vec6& xi = state->object.twist;
+  const bool still = xi.head<3>().norm() < params_.static_speed &&
+                     xi.tail<3>().norm() < params_.static_angular_speed;
+  state->still_frames = still ? state->still_frames + 1 : 0;
+  state->is_static = state->still_frames >= params_.static_frames;
+}
+
+ObjectList ObjectTracker::track(const ObjectFrame& frame) {
+  checkMask(frame.instance, "instance", camera_);
+  checkMask(frame.class_id, "class", camera_);
+  if (frame.grey.type() != CV_8UC1 || frame.grey.cols != camera_.width ||
+      frame.grey.rows != camera_.height)
+    throw std::invalid_argument("object tracker: grey image must be CV_8UC1 of the working size");
+  if (!frame.depth.empty() &&
+      (frame.depth.type() != CV_32FC1 || frame.depth.size() != frame.grey.size()))
+    throw std::invalid_argument("object tracker: depth must be CV_32FC1 of the working size");
+
+  ObjectList out;
+  out.header = frame.header;
+  out.frame_index = frame.frame_index;
+  const bool usable = !frame.depth.empty() && !frame.instance.empty() && !frame.class_id.empty();
+  if (!usable || params_.classes.empty()) {
+    has_previous_ = false;
+    return out;
+  }
+  const std::map<int, InstanceInfo> now = dynamicInstances(frame.instance, frame.class_id);
+  const double dt = has_previous_ ? (frame.header.utime - previous_.header.utime) * 1e-6 : 0;
+
+  cv::Mat flow;
+  const int min_pixels = params_.min_points * params_.stride * params_.stride;
+  for (const auto& [id, info] : now) {
+    if (info.pixels < min_pixels) continue;
+    const DynamicClass& dc = *dynamicClass(info.class_id);
+    auto it = objects_.find(id);
+    if (it != objects_.end() && has_previous_ && dt > 0) {
+      // Seen in the previous frame too: its displacement from the flow of its points.
+      if (flow.empty()) flow = flow_.compute(previous_.grey, frame.grey);
+      std::vector<ObjectCorrespondence> c = objectCorrespondencesFromFlow(
+          camera_, previous_.depth, previous_.instance, id, flow, params_.stride);
+      // Points whose flow lands off the object (occlusion, flow bleeding over the silhouette)
+      // would pull it towards the background; far points are too noisy.
+      c.erase(std::remove_if(c.begin(), c.end(),
+                             [&](const ObjectCorrespondence& m) {
+                               if (m.p_cam0.z() > params_.max_depth_m) return true;
+                               const int x = static_cast<int>(std::lround(m.px1.x()));
+                               const int y = static_cast<int>(std::lround(m.px1.y()));
+                               return x < 0 || y < 0 || x >= camera_.width || y >= camera_.height ||
+                                      frame.instance.at<uint16_t>(y, x) != id;
+                             }),
+              c.end());
+      if (static_cast<int>(c.size()) >= params_.min_points) {
+        ObjectState& state = it->second;
+        if (!state.joint_final && dc.joint == JointType::kPlanar) {
+          Joint planar;
+          const std::vector<Vec3> points = objectPoints(previous_, id);
+          if (!points.empty() && estimateJoint(dc, previous_, points, &planar)) {
+            state.joint = planar;
+            state.joint_final = true;
+            state.last_theta = JointVector();
+          }
+        }
+        try {
+          updateObject(&state, dc, frame, c, dt);
+          out.objects.push_back(state.object);
+        } catch (const std::invalid_argument&) {
+          // Degenerate points (e.g. all behind the camera): the object is not seen this frame.
+        }
+        continue;
+      }
+    }
+    if (it != objects_.end()) continue;  // known, but too few points this frame
+    // A new object: its joint and pose from this frame's depth.
+    const std::vector<Vec3> points = objectPoints(frame, id);
+    if (static_cast<int>(points.size()) < params_.min_points) continue;
+    ObjectState state;
+    state.joint_final = estimateJoint(dc, frame, points, &state.joint);
+    state.object.object_id = id;
+    state.object.class_id = info.class_id;
+    state.object.T_world_object = initialObjectPose(state.joint, points);
+    state.object.joint_type = state.joint.type();
+    state.object.T_world_joint = state.joint.T_world_joint();
+    state.object.parent_cluster = dc.parent_class;
+    state.object.covariance = Mat6::Identity() * 1e6;  // no velocity measured yet
+    state.T_world_object_first = state.object.T_world_object;
+    out.objects.push_back(state.object);
+    objects_.emplace(id, std::move(state));
+  }
+  previous_ = frame;
+  previous_.grey = frame.grey.clone();
+  has_previous_ = true;
+  return out;
+}
+
+}  // namespace radslam

@@ -1,0 +1,124 @@
+// Moving objects inside the tracker (TwistSLAM): which pixels belong to moving objects (kept out
+// of camera tracking and of mapping), and every object's pose and twist under its joint, frame
+// to frame, from the depth of the previous frame and the dense flow to the current one.
+// DESIGN.md section 5.
+//
+/// Clusters. The frame's instance mask splits the image into clusters; the class mask and the
+/// class table (DynamicClass) say which clusters may move and how: a planar joint on the plane of
+/// a static parent class (a car on the road), a revolute joint (a door: its hinge is estimated
+/// from the motion observed while the object is tracked with a free joint), or a free joint.
+/// Static classes drive the camera. An object of a dynamic class is moving until its twist has
+/// stayed below static_speed / static_angular_speed for static_frames frames; it then returns to
+/// the static map (its pixels take part in camera tracking) until it moves again.
+///
+/// Objects are tracked only where the frame has depth (RGB-D sensor depth, stereo disparity, or
+/// none in monocular mode, where only the masking applies).
+#pragma once
+
+#include <cstdint>
+#include <map>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "common/lie.h"
+#include "common/types.h"
+#include "tracker/frontend_flow.h"
+#include "tracker/joints.h"
+#include "tracker/object_tracking.h"
+
+namespace radslam {
+
+/// A class whose instances may move, its joint and the static class that carries it.
+struct DynamicClass {
+  int class_id = 0;
+  JointType joint = JointType::kFree;
+  int parent_class = -1;  // class whose plane carries a planar joint; -1 = none
+};
+
+/// Parses the class table "ID:JOINT[:PARENT],...", JOINT = free | planar | revolute, e.g.
+/// "10:planar:1,11:revolute:2". "" = no dynamic class. Throws std::invalid_argument naming the
+/// item that is wrong (a planar joint needs a parent class, ids are 1..65535 and unique).
+std::vector<DynamicClass> parseDynamicClasses(const std::string& spec);
+
+struct ObjectTrackerParams {
+  std::vector<DynamicClass> classes;
+  int stride = 2;                 // working px between the sample points of an object
+  int min_points = 30;            // points an object needs to be tracked in a frame
+  double max_depth_m = 30.0;      // farther depths are not used (noise grows with z^2)
+  int hinge_min_motions = 5;      // tracked frames before a hinge is estimated
+  double hinge_min_angle = 0.05;  // rad: motions used for the hinge turn at least this much
+  double static_speed = 0.05;     // m/s: below it (and static_angular_speed) an object is still
+  double static_angular_speed = 0.02;  // rad/s
+  int static_frames = 10;              // still frames before an object returns to the static map
+  ObjectTrackingParams tracking;
+  PlaneRansacParams plane;  // parent plane fit (inlier_threshold in m)
+};
+
+/// One frame at working resolution.
+struct ObjectFrame {
+  Header header;
+  int64_t frame_index = 0;
+  cv::Mat grey;      // CV_8UC1
+  cv::Mat depth;     // CV_32FC1 m, 0 = invalid; empty = no depth (objects are not tracked)
+  cv::Mat instance;  // CV_16UC1; empty = no instance mask (classes alone mask pixels)
+  cv::Mat class_id;  // CV_16UC1; empty = no segmentation (nothing is masked)
+  SE3 T_world_cam;
+};
+
+class ObjectTracker {
+ public:
+  /// `camera`: the working camera (pinhole) of every frame. Throws std::invalid_argument on an
+  /// invalid camera or parameters.
+  ObjectTracker(ObjectTrackerParams params, const CameraModel& camera,
+                const FlowOptions& flow_options);
+
+  /// CV_8UC1 working size, 255 where a pixel belongs to a moving object (the classes and the
+  /// objects' state of the frames tracked so far); empty when nothing moves. Throws
+  /// std::invalid_argument on masks of the wrong type or size.
+  cv::Mat movingMask(const cv::Mat& instance, const cv::Mat& class_id) const;
+
+  /// Tracks the objects from the previous frame given to track() to this one (frames in order)
+  /// and returns the objects seen in this frame with their pose, twist, joint and covariance.
+  ObjectList track(const ObjectFrame& frame);
+
+  bool hasDynamicClasses() const { return !params_.classes.empty(); }
+
+ private:
+  struct ObjectState {
+    TrackedObject object;
+    Joint joint;               // in use (free until a planar or revolute joint is known)
+    bool joint_final = false;  // the class's joint is known
+    SE3 T_world_object_first;  // for the hinge: motions since the first tracked frame
+    std::vector<SE3> motions;  // M_w from the first tracked frame, while the hinge is unknown
+    JointVector last_theta;    // last displacement (warm start), joint coordinates
+    int still_frames = 0;
+    bool is_static = false;  // returned to the static map
+  };
+  struct InstanceInfo {
+    int class_id = 0;
+    int pixels = 0;
+  };
+
+  const DynamicClass* dynamicClass(int class_id) const;
+  /// Instances of dynamic classes in a frame (instance id -> class and size).
+  std::map<int, InstanceInfo> dynamicInstances(const cv::Mat& instance,
+                                               const cv::Mat& class_id) const;
+  std::vector<Vec3> objectPoints(const ObjectFrame& frame, int instance_id) const;
+  /// The joint of a new object of class `dc`; false (free joint in *joint) when its frame
+  /// cannot be estimated yet.
+  bool estimateJoint(const DynamicClass& dc, const ObjectFrame& frame,
+                     const std::vector<Vec3>& points_world, Joint* joint) const;
+  void updateObject(ObjectState* state, const DynamicClass& dc, const ObjectFrame& frame,
+                    const std::vector<ObjectCorrespondence>& correspondences, double dt);
+
+  ObjectTrackerParams params_;
+  CameraModel camera_;
+  DenseFlow flow_;
+  std::map<int, ObjectState> objects_;  // by instance id
+  bool has_previous_ = false;
+  ObjectFrame previous_;
+};
+
+}  // namespace radslam
