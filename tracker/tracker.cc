@@ -420,7 +420,17 @@ void Tracker::Impl::track(const Frame& frame, const PreparedImage& image, Tracke
     // before it come from constant depths, so wait for more flow than later keyframes.
     policy.flow_px = p.mono_init_flow_px;
   }
-  if (isNewKeyframe(motion, policy)) {
+  // With metric depth the baseline relative to the scene depth decides as well: forward motion
+  // makes little flow near the focus of expansion, and measured flow fails first where it is
+  // largest (the near ground), so the mean flow alone keeps the keyframe until tracking breaks
+  // (synthetic street at 12 m/s, 30 Hz: RGB-D ATE 16.9 m without it, 1.3 m with it). In
+  // monocular mode the parallax measures the same in scene units (KITTI 07 lost accuracy with
+  // both: 0.38 -> 0.46 m).
+  const double baseline_ratio =
+      (aligned.T_world_frame.translation() - ref.ba.T_world_cam.translation()).norm() *
+      medianPositive(ref.ba.inv_depth, p.init_inv_depth);
+  if (isNewKeyframe(motion, policy) ||
+      (mode != TrackerMode::kMono && baseline_ratio > p.keyframe_baseline_ratio)) {
     makeKeyframe(frame, image, aligned.T_world_frame, &tracked, false, out);
     return;
   }
@@ -500,7 +510,9 @@ void Tracker::Impl::makeKeyframe(const Frame& frame, const PreparedImage& image,
                                   T_world_frame.inverse() * prev.ba.T_world_cam, g.grid);
     }
   }
-  if (mode == TrackerMode::kRgbd) fallback = medianPositive(kf.sensor_inv_depth, fallback);
+  // RGB-D: pixels without sensor depth are mostly beyond its range (sky, far walls); as near
+  // surfaces they would hold translation back.
+  if (mode == TrackerMode::kRgbd) fallback = 1.0 / p.depth_max_m;
   kf.ba.inv_depth =
       cv::Mat(g.gridSize(), CV_32FC1, cv::Scalar(std::numeric_limits<float>::quiet_NaN()));
   if (mode == TrackerMode::kRgbd) kf.sensor_inv_depth.copyTo(kf.ba.inv_depth);

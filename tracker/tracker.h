@@ -80,10 +80,12 @@ struct TrackerParams {
   double keyframe_flow_px = 2.5;      // grid px, mean parallax to the last keyframe
   double keyframe_rotation_px = 8.0;  // grid px, mean flow of the rotation alone
   double keyframe_min_valid = 0.4;    // fraction of tracked pixels below which a keyframe is made
-  int window_size = 8;                // keyframes in dense BA
-  int max_edge_partners = 3;          // earlier keyframes a new keyframe gets edges with
-  double min_edge_overlap = 0.5;      // fraction of pixels predicted inside the other image
-  int flow_ba_rounds = 1;             // (flow, BA) alternations per new keyframe
+  // RGB-D and stereo: translation / median keyframe depth that makes a keyframe.
+  double keyframe_baseline_ratio = 0.1;
+  int window_size = 8;            // keyframes in dense BA
+  int max_edge_partners = 3;      // earlier keyframes a new keyframe gets edges with
+  double min_edge_overlap = 0.5;  // fraction of pixels predicted inside the other image
+  int flow_ba_rounds = 1;         // (flow, BA) alternations per new keyframe
   // Loop edges: a new keyframe also gets an edge pair with the oldest keyframe outside the
   // window that it overlaps by more than loop_min_overlap (fixed pose, depths held by their
   // marginals), when at least loop_min_valid of the pixels are tracked both ways. Bounds drift

@@ -72,6 +72,7 @@ void validateTrackerParams(const TrackerParams& p) {
   check(p.keyframe_flow_px > 0, "keyframe_flow_px must be > 0");
   check(p.keyframe_rotation_px > 0, "keyframe_rotation_px must be > 0");
   check(p.keyframe_min_valid >= 0 && p.keyframe_min_valid < 1, "keyframe_min_valid in [0, 1)");
+  check(p.keyframe_baseline_ratio > 0, "keyframe_baseline_ratio must be > 0");
   check(p.window_size >= 2, "window_size must be >= 2");
   check(p.max_edge_partners >= 1, "max_edge_partners must be >= 1");
   check(p.min_edge_overlap >= 0 && p.min_edge_overlap <= 1, "min_edge_overlap in [0, 1]");
@@ -142,6 +143,7 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("keyframe_flow_px", &p.keyframe_flow_px);
   r.get("keyframe_rotation_px", &p.keyframe_rotation_px);
   r.get("keyframe_min_valid", &p.keyframe_min_valid);
+  r.get("keyframe_baseline_ratio", &p.keyframe_baseline_ratio);
   r.get("window_size", &p.window_size);
   r.get("max_edge_partners", &p.max_edge_partners);
   r.get("min_edge_overlap", &p.min_edge_overlap);
