@@ -25,6 +25,8 @@ constexpr int64_t kWarnEvery = 100;
 // Messages dispatched by one handle() call after the first, so a busy channel
 // cannot keep handle() from returning.
 constexpr int kMaxBatch = 1000;
+// Messages a raw subscription may queue while its handler is busy (LCM's default is 30).
+constexpr int kRawQueueCapacity = 5000;
 
 // LCM treats subscription channels as regular expressions (anchored ^...$);
 // typed subscriptions and the prefix must match literally.
@@ -158,8 +160,12 @@ void Bus::subscribe(const std::string& channel, std::function<void(const T&)> ha
 
 void Bus::subscribeRaw(const std::string& channel_regex, RawHandler handler) {
   auto sub = std::make_unique<Impl::RawSubscriber>(impl_.get(), std::move(handler));
-  impl_->lcm.subscribe(escapeRegex(prefix_) + "(" + channel_regex + ")",
-                       &Impl::Subscriber::onMessage, static_cast<Impl::Subscriber*>(sub.get()));
+  lcm::Subscription* subscription =
+      impl_->lcm.subscribe(escapeRegex(prefix_) + "(" + channel_regex + ")",
+                           &Impl::Subscriber::onMessage, static_cast<Impl::Subscriber*>(sub.get()));
+  // LCM drops beyond 30 queued messages per subscription; a raw subscriber (the recorder)
+  // must keep every message of a burst (e.g. the tracker's final poses behind keyframes).
+  if (subscription) subscription->setQueueCapacity(kRawQueueCapacity);
   impl_->subscribers.push_back(std::move(sub));
 }
 

@@ -69,7 +69,8 @@ class Bus {
   void subscribe(const std::string& channel, std::function<void(const T&)> handler);
 
   /// Raw access (recorder): every channel matching the regex (prefix applied),
-  /// with the full channel name, receive time (us) and the undecoded bytes.
+  /// with the full channel name, receive time (us) and the undecoded bytes. Its queue
+  /// holds up to 5000 messages (typed subscriptions: LCM's 30), so a burst is not dropped.
   using RawHandler = std::function<void(const std::string& channel, int64_t recv_utime,
                                         const uint8_t* data, size_t size)>;
   void subscribeRaw(const std::string& channel_regex, RawHandler handler);

@@ -78,6 +78,9 @@ int run(int argc, char** argv) {
       ".*", [&](const std::string& ch, int64_t recv_utime, const uint8_t* data, size_t size) {
         BusyTimer::Scope busy(reporter.busy());
         log.write(recv_utime, ch, data, size);
+        // Into the kernel at once: a recorder killed (SIGKILL, OOM) loses no event it wrote.
+        // One write(2) per event; the receive path already costs more syscalls than that.
+        log.flush();
         recorder.onMessage(ch, recv_utime, size);
         reporter.itemHandled();
         if (is(ch, channel::kCamera)) {
@@ -113,7 +116,7 @@ int run(int argc, char** argv) {
   auto elapsed = [&] {
     return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   };
-  double last_flush = 0, last_line = 0, last_status = 0;
+  double last_line = 0, last_status = 0;
   while (!stopRequested()) {
     if (bus.handle(100) < 0) {
       // A file:// URL ends with its log: export what it held.
@@ -121,10 +124,6 @@ int run(int argc, char** argv) {
       throw std::runtime_error("LCM handle failed on " + url);
     }
     const double now = elapsed();
-    if (now - last_flush > 1.0) {  // a killed recorder keeps all but the last second
-      log.flush();
-      last_flush = now;
-    }
     if (now - last_status > 0.5) {
       reporter.setState(ProcessState::kRunning);
       reporter.setValue("log_events", static_cast<double>(log.eventsWritten()));
