@@ -48,6 +48,39 @@ bool covarianceFromLcm(const double* in, const std::string& name, Mat6* out, std
   return true;
 }
 
+// LCM strings are NUL-terminated on the wire: one holding a NUL decodes, but
+// cannot be encoded again (a process echoing it, as the renderer echoes a
+// request's client, would fail to publish).
+bool checkText(const std::string& text, const std::string& name, std::string* error) {
+  if (text.find('\0') != std::string::npos) return fail(error, name + " contains a NUL byte");
+  return true;
+}
+
+bool checkHeader(const header_t& in, std::string* error) {
+  return checkText(in.sender, "header.sender", error);
+}
+
+// Depths consumers use as numbers (0 or negative = invalid): a NaN or infinity
+// would spread through every estimate computed from them. Variances may be +inf
+// (the tracker's "unknown"), never NaN or -inf.
+enum class FloatRule { kFinite, kVariance };
+bool checkFloatImage(const cv::Mat& image, FloatRule rule, const std::string& name,
+                     std::string* error) {
+  if (image.empty() || image.type() != CV_32FC1) return true;
+  for (int r = 0; r < image.rows; ++r) {
+    const float* row = image.ptr<float>(r);
+    for (int c = 0; c < image.cols; ++c) {
+      const float v = row[c];
+      if (std::isfinite(v) || (rule == FloatRule::kVariance && v > 0)) continue;
+      return fail(error, name + ": pixel (" + std::to_string(c) + ", " + std::to_string(r) +
+                             ") is " + std::to_string(v) +
+                             (rule == FloatRule::kVariance ? " (finite or +inf expected)"
+                                                           : " (finite expected)"));
+    }
+  }
+  return true;
+}
+
 int32_t checkedCount(size_t n, const std::string& name) {
   if (n > static_cast<size_t>(INT32_MAX)) {
     throw std::invalid_argument(name + ": " + std::to_string(n) + " elements do not fit a message");
@@ -136,11 +169,11 @@ void toLcm(const Frame& msg, frame_t* out) {
   } else if (msg.depth_wire_scale > 0) {
     if (!(depth_scale > 0)) throw std::invalid_argument("Frame.depth_wire_scale underflows float");
     // Depth is never JPEG: lossless PNG unless the sender chose raw images.
-    const WireCompression depth_compression =
-        msg.color_compression == WireCompression::kRaw ? WireCompression::kRaw
-                                                       : WireCompression::kPng;
-    imageToLcm(quantizeDepth(msg.depth, depth_scale), depth_compression, depth_scale,
-               "Frame.depth", &out->depth);
+    const WireCompression depth_compression = msg.color_compression == WireCompression::kRaw
+                                                  ? WireCompression::kRaw
+                                                  : WireCompression::kPng;
+    imageToLcm(quantizeDepth(msg.depth, depth_scale), depth_compression, depth_scale, "Frame.depth",
+               &out->depth);
   } else {
     imageToLcm(msg.depth, WireCompression::kRaw, 0.0f, "Frame.depth", &out->depth);
   }
@@ -150,6 +183,7 @@ void toLcm(const Frame& msg, frame_t* out) {
 
 bool fromLcm(const frame_t& in, Frame* out, std::string* error) {
   Frame f;
+  if (!checkHeader(in.header, error)) return false;
   headerFromLcm(in.header, &f.header);
   f.frame_index = in.frame_index;
   if (!cameraFromLcm(in.camera, "camera", &f.camera, error)) return false;
@@ -169,6 +203,8 @@ bool fromLcm(const frame_t& in, Frame* out, std::string* error) {
   } else {
     f.depth = depth;
   }
+  // Also after scaling: a huge UINT16 scale overflows float.
+  if (!checkFloatImage(f.depth, FloatRule::kFinite, "depth", error)) return false;
   if (!imageFromLcm(in.instance, "instance", kAllowUint16, &f.instance, error)) return false;
   if (!imageFromLcm(in.class_id, "class_id", kAllowUint16, &f.class_id, error)) return false;
   if (!checkSameSize({{&f.color, "color"},
@@ -197,6 +233,7 @@ void toLcm(const PoseStamped& msg, pose_stamped_t* out) {
 
 bool fromLcm(const pose_stamped_t& in, PoseStamped* out, std::string* error) {
   PoseStamped p;
+  if (!checkHeader(in.header, error)) return false;
   headerFromLcm(in.header, &p.header);
   p.frame_index = in.frame_index;
   if (in.state < pose_stamped_t::INITIALIZING || in.state > pose_stamped_t::GROUND_TRUTH) {
@@ -248,6 +285,7 @@ void toLcm(const Keyframe& msg, keyframe_t* out) {
 
 bool fromLcm(const keyframe_t& in, Keyframe* out, std::string* error) {
   Keyframe k;
+  if (!checkHeader(in.header, error)) return false;
   headerFromLcm(in.header, &k.header);
   k.keyframe_id = in.keyframe_id;
   k.version = in.version;
@@ -261,6 +299,12 @@ bool fromLcm(const keyframe_t& in, Keyframe* out, std::string* error) {
       !imageFromLcm(in.depth, "depth", kAllowFloat32, &k.depth, error) ||
       !imageFromLcm(in.depth_var, "depth_var", kAllowFloat32, &k.depth_var, error) ||
       !imageFromLcm(in.dynamic_mask, "dynamic_mask", kAllowGrey8, &k.dynamic_mask, error)) {
+    return false;
+  }
+  // inv_depth and inv_depth_var may hold NaN/inf where BA has no estimate; the
+  // metric maps the mapper trains on may not.
+  if (!checkFloatImage(k.depth, FloatRule::kFinite, "depth", error) ||
+      !checkFloatImage(k.depth_var, FloatRule::kVariance, "depth_var", error)) {
     return false;
   }
   if (!checkSameSize({{&k.color, "color"},
@@ -300,6 +344,7 @@ void toLcm(const ObjectList& msg, objects_t* out) {
 
 bool fromLcm(const objects_t& in, ObjectList* out, std::string* error) {
   ObjectList list;
+  if (!checkHeader(in.header, error)) return false;
   headerFromLcm(in.header, &list.header);
   list.frame_index = in.frame_index;
   list.objects.resize(in.objects.size());
@@ -309,6 +354,7 @@ bool fromLcm(const objects_t& in, ObjectList* out, std::string* error) {
     const std::string name = "objects[" + std::to_string(i) + "]";
     o.object_id = l.object_id;
     o.class_id = l.class_id;
+    if (!checkText(l.class_name, name + ".class_name", error)) return false;
     o.class_name = l.class_name;
     if (!poseFromLcm(l.T_world_object, name + ".T_world_object", &o.T_world_object, error)) {
       return false;
@@ -357,6 +403,7 @@ void toLcm(const FieldUpdate& msg, field_update_t* out) {
 }
 
 bool fromLcm(const field_update_t& in, FieldUpdate* out, std::string* error) {
+  if (!checkHeader(in.header, error) || !checkText(in.layout, "layout", error)) return false;
   FieldUpdate u;
   headerFromLcm(in.header, &u.header);
   u.version = in.version;
@@ -400,6 +447,7 @@ void toLcm(const RenderRequest& msg, render_request_t* out) {
 
 bool fromLcm(const render_request_t& in, RenderRequest* out, std::string* error) {
   RenderRequest r;
+  if (!checkHeader(in.header, error) || !checkText(in.client, "client", error)) return false;
   headerFromLcm(in.header, &r.header);
   r.request_id = in.request_id;
   r.client = in.client;
@@ -433,6 +481,10 @@ void toLcm(const RenderResult& msg, render_t* out) {
 
 bool fromLcm(const render_t& in, RenderResult* out, std::string* error) {
   RenderResult r;
+  if (!checkHeader(in.header, error) || !checkText(in.client, "client", error) ||
+      !checkText(in.error, "error", error)) {
+    return false;
+  }
   headerFromLcm(in.header, &r.header);
   r.request_id = in.request_id;
   r.client = in.client;
@@ -479,6 +531,13 @@ void toLcm(const Status& msg, status_t* out) {
 
 bool fromLcm(const status_t& in, Status* out, std::string* error) {
   Status s;
+  if (!checkHeader(in.header, error) || !checkText(in.process, "process", error) ||
+      !checkText(in.last_error, "last_error", error)) {
+    return false;
+  }
+  for (size_t i = 0; i < in.keys.size(); ++i) {
+    if (!checkText(in.keys[i], "keys[" + std::to_string(i) + "]", error)) return false;
+  }
   headerFromLcm(in.header, &s.header);
   s.process = in.process;
   s.pid = in.pid;
@@ -510,6 +569,10 @@ void toLcm(const Control& msg, control_t* out) {
 
 bool fromLcm(const control_t& in, Control* out, std::string* error) {
   Control c;
+  if (!checkHeader(in.header, error) || !checkText(in.target, "target", error) ||
+      !checkText(in.argument, "argument", error)) {
+    return false;
+  }
   headerFromLcm(in.header, &c.header);
   if (in.command < control_t::STOP || in.command > control_t::REPUBLISH) {
     return fail(error, "unknown control command " + std::to_string(in.command));

@@ -14,6 +14,7 @@
 #include <radslam/image_t.hpp>
 #include <radslam/pose_t.hpp>
 
+#include "common/camera.h"
 #include "common/codec.h"
 
 namespace radslam {
@@ -22,6 +23,13 @@ namespace {
 
 constexpr int kPngLevel = 1;      // zlib level: fast, still ~2-4x on depth and masks
 constexpr int kJpegQuality = 95;  // visually lossless for tracking and display
+// Deflate (PNG) expands at most 1032:1; sequential JPEG, as radslam sends it,
+// needs at least 2 bits per 8x8 block and channel, a smaller ratio. A compressed
+// image declaring more pixels than its bytes can hold is corrupt or hostile and
+// is refused before OpenCV allocates the declared size.
+constexpr int64_t kMaxInflationRatio = 1032;
+// Below this many decoded bytes the ratio is not checked (headers dominate).
+constexpr int64_t kMinInflationCheckBytes = 1 << 20;
 // OpenCV supports 4, 5, 8, 12 or 14 distortion coefficients.
 constexpr int kMaxDistortion = 14;
 
@@ -344,6 +352,14 @@ bool imageFromLcm(const image_t& in, const std::string& name, int allowed_format
         return fail(error, name + ": " + codec_name + " header says " + std::to_string(w) + "x" +
                                std::to_string(h) + " but the message declares " + size_text);
       }
+      const int64_t compressed = static_cast<int64_t>(in.data.size());
+      if (expected_raw > kMinInflationCheckBytes &&
+          expected_raw > kMaxInflationRatio * compressed) {
+        return fail(error, name + ": " + codec_name + " of " + std::to_string(compressed) +
+                               " bytes cannot hold a " + size_text + " " + formatName(in.format) +
+                               " image (more than " + std::to_string(kMaxInflationRatio) +
+                               ":1 expansion)");
+      }
       cv::Mat decoded;
       try {
         decoded = cv::imdecode(cv::Mat(1, static_cast<int>(in.data.size()), CV_8UC1,
@@ -446,14 +462,28 @@ bool cameraFromLcm(const camera_t& in, const std::string& name, CameraModel* out
   for (double k : in.distortion) {
     if (!std::isfinite(k)) return fail(error, name + ": distortion is not finite");
   }
-  out->width = in.width;
-  out->height = in.height;
-  out->type = static_cast<CameraModel::Type>(in.model);
-  out->fx = in.fx;
-  out->fy = in.fy;
-  out->cx = in.cx;
-  out->cy = in.cy;
-  out->distortion = in.distortion;
+  CameraModel camera;
+  camera.width = in.width;
+  camera.height = in.height;
+  camera.type = static_cast<CameraModel::Type>(in.model);
+  camera.fx = in.fx;
+  camera.fy = in.fy;
+  camera.cx = in.cx;
+  camera.cy = in.cy;
+  camera.distortion = in.distortion;
+  // A camera with a size is one the receiver projects with: refuse here what
+  // its Undistorter or tracker would throw on (focal lengths > 0, coefficient
+  // counts of the model). Size 0x0 means "no camera".
+  if (in.width != 0 || in.height != 0) {
+    try {
+      validateCamera(camera);
+    } catch (const std::invalid_argument& e) {
+      std::string what = e.what();
+      if (what.rfind("camera: ", 0) == 0) what.erase(0, 8);
+      return fail(error, name + ": " + what);
+    }
+  }
+  *out = std::move(camera);
   return true;
 }
 

@@ -14,6 +14,7 @@ namespace radslam::dataset_internal {
 namespace {
 
 constexpr double kMaxStereoGapS = 0.002;  // EuRoC's cameras are hardware-triggered together
+constexpr int kMaxImageSide = 100000;     // pixels, as readCameraNode
 
 struct EurocCamera {
   CameraModel model;  // raw (distorted) camera
@@ -34,6 +35,9 @@ std::vector<double> readNumberList(const cv::FileNode& node, const std::string& 
     if (n.isSeq()) {
       for (const cv::FileNode& child : n) visit(child);
     } else if (n.isInt() || n.isReal()) {
+      // YAML has .nan and .inf: calibration must be finite.
+      if (!std::isfinite(n.real()))
+        throw std::runtime_error(path + ": key '" + key + "' holds a non-finite number");
       values.push_back(n.real());
     } else {
       throw std::runtime_error(path + ": key '" + key + "' must hold only numbers");
@@ -76,8 +80,11 @@ EurocCamera readEurocCamera(const std::string& dir) {
   const std::vector<double> resolution = readNumberList(root, "resolution", yaml);
   if (intrinsics.size() != 4 || intrinsics[0] <= 0 || intrinsics[1] <= 0)
     throw std::runtime_error(yaml + ": intrinsics must be [fu, fv, cu, cv] with fu, fv > 0");
-  if (resolution.size() != 2 || resolution[0] < 1 || resolution[1] < 1)
-    throw std::runtime_error(yaml + ": resolution must be [width, height]");
+  if (resolution.size() != 2 || resolution[0] < 1 || resolution[1] < 1 ||
+      resolution[0] > kMaxImageSide || resolution[1] > kMaxImageSide ||
+      resolution[0] != std::floor(resolution[0]) || resolution[1] != std::floor(resolution[1]))
+    throw std::runtime_error(yaml + ": resolution must be [width, height], integers in [1, " +
+                             std::to_string(kMaxImageSide) + "]");
   CameraModel& m = camera.model;
   m.width = static_cast<int>(resolution[0]);
   m.height = static_cast<int>(resolution[1]);
@@ -128,7 +135,8 @@ Trajectory readEurocGroundTruth(const std::string& csv, const SE3& T_body_cam) {
     bool ok = row.fields.size() >= 8 && parseInteger(row.fields[0], &stamp);
     for (int k = 0; ok && k < 7; ++k) ok = parseNumber(row.fields[1 + k], &v[k]);
     const Eigen::Quaterniond q(v[3], v[4], v[5], v[6]);
-    if (!ok || q.norm() < 1e-6)
+    // A norm that overflows would normalise to a zero rotation.
+    if (!ok || q.norm() < 1e-6 || !std::isfinite(q.squaredNorm()))
       throw std::runtime_error(csv + ":" + std::to_string(row.line) +
                                ": expected 'timestamp_ns, px, py, pz, qw, qx, qy, qz, ...'");
     const SE3 T_world_body(q, Vec3(v[0], v[1], v[2]));

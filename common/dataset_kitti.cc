@@ -1,5 +1,6 @@
 // KITTI odometry reader: sequences/XX with image_0 (+ image_1), calib.txt,
 // times.txt, and ground truth from ../../poses/XX.txt.
+#include <cmath>
 #include <filesystem>
 #include <map>
 #include <stdexcept>
@@ -66,8 +67,9 @@ class KittiDataset : public DatasetReader {
     if (isDirectory(right_dir_)) {
       const std::vector<double>& P1 = projection(calib, "P1", calib_path);
       baseline_m_ = -P1[3] / P1[0];
-      if (baseline_m_ <= 0)
-        throw std::runtime_error(calib_path + ": P1 gives a non-positive stereo baseline");
+      // The division overflows for a tiny focal length.
+      if (!std::isfinite(baseline_m_) || baseline_m_ <= 0)
+        throw std::runtime_error(calib_path + ": P1 gives no finite positive stereo baseline");
     }
 
     const std::filesystem::path sequence = std::filesystem::absolute(path);

@@ -12,12 +12,15 @@ namespace {
 // Replica is rendered, it has no clock: frames are stamped at NICE-SLAM's 30 Hz.
 constexpr double kReplicaRateHz = 30.0;
 constexpr double kReplicaDefaultDepthScale = 6553.5;  // depth units per metre
+constexpr int kMaxImageSide = 100000;                 // pixels, as readCameraNode
 
 double jsonNumber(const cv::FileNode& camera, const std::string& key, const std::string& path) {
   const cv::FileNode value = camera[key];
   if (value.empty()) throw std::runtime_error(path + ": \"camera\" has no \"" + key + "\"");
   if (!value.isInt() && !value.isReal())
     throw std::runtime_error(path + ": \"camera\".\"" + key + "\" is not a number");
+  if (!std::isfinite(value.real()))
+    throw std::runtime_error(path + ": \"camera\".\"" + key + "\" is not finite");
   return value.real();
 }
 
@@ -112,8 +115,15 @@ class ReplicaDataset : public DatasetReader {
     const cv::FileNode camera = storage["camera"];
     if (!storage.isOpened() || !camera.isMap())
       throw std::runtime_error(json + ": expected a \"camera\" object");
-    camera_.width = static_cast<int>(jsonNumber(camera, "w", json));
-    camera_.height = static_cast<int>(jsonNumber(camera, "h", json));
+    const double width = jsonNumber(camera, "w", json);
+    const double height = jsonNumber(camera, "h", json);
+    // Checked before the conversion to int, which is undefined out of range.
+    if (width < 1 || height < 1 || width > kMaxImageSide || height > kMaxImageSide ||
+        width != std::floor(width) || height != std::floor(height))
+      throw std::runtime_error(json + ": w and h must be integers in [1, " +
+                               std::to_string(kMaxImageSide) + "]");
+    camera_.width = static_cast<int>(width);
+    camera_.height = static_cast<int>(height);
     camera_.fx = jsonNumber(camera, "fx", json);
     camera_.fy = jsonNumber(camera, "fy", json);
     camera_.cx = jsonNumber(camera, "cx", json);

@@ -32,7 +32,8 @@ std::vector<ObjectPoseSample> readObjects(const std::string& path) {
         std::abs(v[2]) > 2e9)
       throw std::runtime_error(at + "object_id and class_id must be integers");
     const Eigen::Quaterniond q(v[9], v[6], v[7], v[8]);
-    if (q.norm() < 1e-6) throw std::runtime_error(at + "quaternion has zero norm");
+    if (q.norm() < 1e-6 || !std::isfinite(q.squaredNorm()))
+      throw std::runtime_error(at + "quaternion norm is zero or overflows");
     ObjectPoseSample sample;
     sample.t = v[0];
     sample.object_id = static_cast<int32_t>(v[1]);
@@ -55,9 +56,13 @@ std::vector<SemanticClass> readClasses(const std::string& path) {
     if (!node.isMap() || !node["id"].isInt() || !node["name"].isString())
       throw std::runtime_error(at + "needs an integer 'id' and a string 'name'");
     SemanticClass c;
-    c.id = static_cast<int32_t>(node["id"].real());
+    c.id = static_cast<int32_t>(static_cast<int>(node["id"]));
     c.name = node["name"].string();
-    c.dynamic = !node["dynamic"].empty() && static_cast<int>(node["dynamic"].real()) != 0;
+    // real() of a string node is DBL_MAX: check the type before converting.
+    const cv::FileNode dynamic = node["dynamic"];
+    if (!dynamic.empty() && !dynamic.isInt())
+      throw std::runtime_error(at + "'dynamic' must be 0 or 1");
+    c.dynamic = !dynamic.empty() && static_cast<int>(dynamic) != 0;
     const std::string joint = node["joint"].empty() ? "free" : node["joint"].string();
     if (joint == "free") {
       c.joint = JointType::kFree;

@@ -21,7 +21,9 @@ class LogReader {
   /// Throws std::runtime_error naming the file when it cannot be opened.
   explicit LogReader(const std::string& path);
   ~LogReader();
-  /// Next event, or nullopt at the end (a truncated last event also ends it).
+  /// Next event, or nullopt at the end. A truncated last event also ends it; so
+  /// does a corrupt one (invalid lengths), with a warning on stderr. Lengths are
+  /// checked against the bytes left in the file before anything is allocated.
   std::optional<LogEvent> next();
 
  private:

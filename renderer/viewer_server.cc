@@ -62,7 +62,7 @@ bool parseRenderQuery(const std::map<std::string, std::string>& q, RenderRequest
     *error = "missing parameter pose (tx,ty,tz,qx,qy,qz,qw)";
     return false;
   }
-  double p[7];
+  double p[7] = {0, 0, 0, 0, 0, 0, 0};
   std::stringstream s(pose->second);
   std::string item;
   int n = 0;
@@ -73,14 +73,16 @@ bool parseRenderQuery(const std::map<std::string, std::string>& q, RenderRequest
     }
     ++n;
   }
-  const double qnorm = std::sqrt(p[3] * p[3] + p[4] * p[4] + p[5] * p[5] + p[6] * p[6]);
+  // std::hypot: the norm of large finite components must not overflow to inf.
+  const double qnorm = n == 7 ? std::hypot(std::hypot(p[3], p[4]), std::hypot(p[5], p[6])) : 0;
   if (n != 7 || !(qnorm > 1e-9)) {
     *error =
         "parameter pose must be 7 finite numbers tx,ty,tz,qx,qy,qz,qw with a non-zero "
         "quaternion";
     return false;
   }
-  r->T_world_cam = SE3(Eigen::Quaterniond(p[6], p[3], p[4], p[5]), Vec3(p[0], p[1], p[2]));
+  r->T_world_cam = SE3(Eigen::Quaterniond(p[6] / qnorm, p[3] / qnorm, p[4] / qnorm, p[5] / qnorm),
+                       Vec3(p[0], p[1], p[2]));
   double w = 0, h = 0, fx = 0;
   if (!get("w", &w, true) || !get("h", &h, true) || !get("fx", &fx, true)) return false;
   if (w != std::floor(w) || h != std::floor(h) || w > 1e6 || h > 1e6 || w < -1e6 || h < -1e6) {

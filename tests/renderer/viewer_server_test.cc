@@ -4,9 +4,12 @@
 #include <httplib.h>
 #include <unistd.h>
 
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
+#include <map>
 #include <string>
+#include <vector>
 
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -151,6 +154,52 @@ TEST_F(ViewerServerTest, RendersFreeViewsAndRejectsBadOnes) {
     EXPECT_EQ(r->status, 400) << bad;
     EXPECT_NE(r->body.find("\"ok\":false"), std::string::npos) << r->body;
   }
+}
+
+// parseRenderQuery on its own: every number finite, the pose complete, the
+// quaternion normalised even from components whose squares overflow.
+TEST(ViewerServer, RenderQueryRejectsNonFiniteAndIncompleteInput) {
+  const std::map<std::string, std::string> good = {
+      {"pose", "1,2,3,0,0,0,1"}, {"w", "8"}, {"h", "6"}, {"fx", "10"}, {"kind", "depth"}};
+  RenderRequest request;
+  std::string kind, error;
+  ASSERT_TRUE(parseRenderQuery(good, &request, &kind, &error)) << error;
+  EXPECT_EQ(kind, "depth");
+  EXPECT_EQ(request.channels, kRenderDepth);
+  EXPECT_DOUBLE_EQ(request.camera.cx, 3.5);
+  struct Case {
+    std::string key, value, expected;
+  };
+  for (const Case& c : std::vector<Case>{
+           {"pose", "1,2,3,0,0,0,nan", "pose must be 7 finite numbers"},
+           {"pose", "1,2,inf,0,0,0,1", "pose must be 7 finite numbers"},
+           {"pose", "1,2,3,0,0,1", "pose must be 7 finite numbers"},
+           {"pose", "1,2,3", "pose must be 7 finite numbers"},
+           {"pose", "", "pose must be 7 finite numbers"},
+           {"pose", "1,2,3,0,0,0,1,4", "pose must be 7 finite numbers"},
+           {"pose", "1,2,3,0,0,0,1e-300", "non-zero quaternion"},
+           {"w", "nan", "parameter w is not a finite number"},
+           {"h", "1e400", "parameter h is not a finite number"},
+           {"fx", "-inf", "parameter fx is not a finite number"},
+           {"fy", "NAN", "parameter fy is not a finite number"},
+           {"cx", "inf", "parameter cx is not a finite number"},
+           {"cy", "0x1p2000", "parameter cy is not a finite number"},
+           {"w", "8.5", "w and h must be integers"},
+           {"fx", "0", "focal lengths must be > 0"},
+       }) {
+    std::map<std::string, std::string> query = good;
+    query[c.key] = c.value;
+    error.clear();
+    EXPECT_FALSE(parseRenderQuery(query, &request, &kind, &error)) << c.key << "=" << c.value;
+    EXPECT_NE(error.find(c.expected), std::string::npos)
+        << c.key << "=" << c.value << ": " << error;
+  }
+  // Components whose squares overflow double: normalised, not rejected or NaN.
+  std::map<std::string, std::string> huge = good;
+  huge["pose"] = "0,0,0,0,0,1e200,1e200";
+  ASSERT_TRUE(parseRenderQuery(huge, &request, &kind, &error)) << error;
+  EXPECT_TRUE(request.T_world_cam.matrix().allFinite());
+  EXPECT_NEAR(request.T_world_cam.quaternion().z(), std::sqrt(0.5), 1e-12);
 }
 
 TEST(ViewerServer, MissingWebFileIsAClearError) {
