@@ -384,6 +384,9 @@ void toLcm(const FieldUpdate& msg, field_update_t* out) {
   out->version = msg.version;
   out->base_version = msg.base_version;
   out->is_snapshot = msg.is_snapshot ? 1 : 0;
+  out->snapshot_id = msg.snapshot_id;
+  out->chunk_index = msg.chunk_index;
+  out->chunk_count = msg.chunk_count;
   out->layout = msg.layout;
   out->num_levels = checkedCount(msg.voxel_size.size(), "FieldUpdate.voxel_size");
   out->voxel_size = msg.voxel_size;
@@ -409,6 +412,13 @@ bool fromLcm(const field_update_t& in, FieldUpdate* out, std::string* error) {
   u.version = in.version;
   u.base_version = in.base_version;
   u.is_snapshot = in.is_snapshot != 0;
+  if (in.chunk_count < 1 || in.chunk_index < 0 || in.chunk_index >= in.chunk_count) {
+    return fail(error, "chunk " + std::to_string(in.chunk_index) + " of " +
+                           std::to_string(in.chunk_count) + " is invalid");
+  }
+  u.snapshot_id = in.snapshot_id;
+  u.chunk_index = in.chunk_index;
+  u.chunk_count = in.chunk_count;
   u.layout = in.layout;
   for (double v : in.voxel_size) {
     if (!std::isfinite(v) || v <= 0) return fail(error, "voxel_size must be finite and > 0");

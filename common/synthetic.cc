@@ -486,18 +486,6 @@ Frame SyntheticScene::frame(int i) const {
 
 namespace {
 
-const char* jointName(JointType joint) {
-  switch (joint) {
-    case JointType::kPlanar:
-      return "planar";
-    case JointType::kRevolute:
-      return "revolute";
-    case JointType::kFree:
-      break;
-  }
-  return "free";
-}
-
 struct FileCloser {
   void operator()(std::FILE* f) const { std::fclose(f); }
 };
@@ -591,7 +579,7 @@ void generateSyntheticDataset(const SyntheticConfig& config, const std::string& 
     for (const SemanticClass& c : scene.classes())
       fs << "{"
          << "id" << c.id << "name" << c.name << "dynamic" << (c.dynamic ? 1 : 0) << "joint"
-         << jointName(c.joint) << "parent" << c.parent << "}";
+         << jointTypeName(c.joint) << "parent" << c.parent << "}";
     fs << "]";
   }
   {

@@ -84,6 +84,19 @@ struct Keyframe {
 
 enum class JointType : int8_t { kFree = 0, kPlanar = 1, kRevolute = 2 };
 
+/// "free", "planar" or "revolute".
+inline const char* jointTypeName(JointType type) {
+  switch (type) {
+    case JointType::kPlanar:
+      return "planar";
+    case JointType::kRevolute:
+      return "revolute";
+    case JointType::kFree:
+      return "free";
+  }
+  return "unknown";
+}
+
 struct TrackedObject {
   int32_t object_id = 0;
   int32_t class_id = 0;
@@ -115,6 +128,10 @@ struct FieldUpdate {
   int64_t version = 0;
   int64_t base_version = 0;
   bool is_snapshot = false;
+  // Snapshots travel in chunks (mapper/field_io.h): chunk_index of chunk_count, one snapshot_id.
+  int64_t snapshot_id = 0;
+  int32_t chunk_index = 0;
+  int32_t chunk_count = 1;
   std::string layout;
   std::vector<double> voxel_size;  // m, per level
   int32_t block_dim = 0;

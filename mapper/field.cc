@@ -198,7 +198,98 @@ Field::Value Field::query(const Eigen::Vector3f& p, const Eigen::Vector3f& dir) 
   return out;
 }
 
+void Field::markDensityChanged(int level, int block) {
+  const Level& lv = levels_[level];
+  if (lv.bounds_stale_flag.size() < lv.blocks.size()) lv.bounds_stale_flag.resize(lv.blocks.size());
+  uint8_t& flag = lv.bounds_stale_flag[block];
+  if (!flag) {
+    flag = 1;
+    lv.bounds_stale.push_back(block);
+  }
+  bounds_sync_.stale.store(true, std::memory_order_release);
+}
+
+void Field::refreshBoundsIfStale() const {
+  if (!bounds_sync_.stale.load(std::memory_order_acquire)) return;
+  std::lock_guard<std::mutex> lock(bounds_sync_.mutex);
+  if (!bounds_sync_.stale.load(std::memory_order_relaxed)) return;
+  for (int l = 0; l < numLevels(); ++l) refreshBounds(l);
+  bounds_sync_.stale.store(false, std::memory_order_release);
+}
+
+const float* Field::densityBounds(int level) const {
+  refreshBoundsIfStale();
+  return levels_[level].bounds.data();
+}
+
+const uint8_t* Field::zeroSubBlocks(int level) const {
+  refreshBoundsIfStale();
+  return levels_[level].zero_sub.data();
+}
+
+void Field::refreshBounds(int level) const {
+  const Level& lv = levels_[level];
+  lv.bounds.resize(lv.blocks.size() * kSubBlocks, 0.f);
+  lv.zero_sub.resize(lv.blocks.size() * kSubBlocks, 1);
+  lv.bounds_stale_flag.resize(lv.blocks.size(), 0);
+  // A block's sub-blocks read the first lattice layer of its +x, +y, +z neighbours, so a
+  // changed block changes its lower neighbours' bounds too.
+  std::vector<int> todo = lv.bounds_stale;
+  for (const int b : lv.bounds_stale) {
+    const Eigen::Vector3i& i = lv.blocks[b].index;
+    for (int c = 1; c < 8; ++c) {
+      const int n = lv.find(i.x() - (c & 1), i.y() - ((c >> 1) & 1), i.z() - (c >> 2));
+      if (n >= 0 && !lv.bounds_stale_flag[n]) {
+        lv.bounds_stale_flag[n] = 1;
+        todo.push_back(n);
+      }
+    }
+  }
+  constexpr int kGrid = kBlockDim + 1;     // lattice points per axis read by a block's cells
+  float grid[kGrid * kGrid * kGrid];       // raw density
+  uint8_t nonzero[kGrid * kGrid * kGrid];  // some channel != 0
+  for (const int b : todo) {
+    const Eigen::Vector3i& i = lv.blocks[b].index;
+    int neighbour[8];  // the block and its +x, +y, +z neighbours, indexed like cell corners
+    for (int c = 0; c < 8; ++c)
+      neighbour[c] =
+          c == 0 ? b : lv.find(i.x() + (c & 1), i.y() + ((c >> 1) & 1), i.z() + (c >> 2));
+    for (int z = 0; z < kGrid; ++z)
+      for (int y = 0; y < kGrid; ++y)
+        for (int x = 0; x < kGrid; ++x) {
+          const int n =
+              neighbour[(x >> kBlockShift) | ((y >> kBlockShift) << 1) | ((z >> kBlockShift) << 2)];
+          const int g = (z * kGrid + y) * kGrid + x;
+          grid[g] = 0.f;
+          nonzero[g] = 0;
+          if (n < 0) continue;
+          const float* v = lv.data.data() + (size_t(n) * kBlockVoxels +
+                                             voxelInBlock(localOf(x), localOf(y), localOf(z))) *
+                                                channels_;
+          grid[g] = v[0];
+          for (int ch = 0; ch < channels_; ++ch) nonzero[g] |= v[ch] != 0.f;
+        }
+    for (int sub = 0; sub < kSubBlocks; ++sub) {
+      const int ox = kSubDim * (sub & 1), oy = kSubDim * ((sub >> 1) & 1),
+                oz = kSubDim * (sub >> 2);
+      float m = -INFINITY;
+      uint8_t any = 0;
+      for (int z = oz; z <= oz + kSubDim; ++z)
+        for (int y = oy; y <= oy + kSubDim; ++y)
+          for (int x = ox; x <= ox + kSubDim; ++x) {
+            m = std::max(m, grid[(z * kGrid + y) * kGrid + x]);
+            any |= nonzero[(z * kGrid + y) * kGrid + x];
+          }
+      lv.bounds[size_t(b) * kSubBlocks + sub] = m;
+      lv.zero_sub[size_t(b) * kSubBlocks + sub] = !any;
+    }
+    lv.bounds_stale_flag[b] = 0;
+  }
+  lv.bounds_stale.clear();
+}
+
 void Field::markChanged(int level, int block) {
+  markDensityChanged(level, block);
   BlockInfo& info = levels_[level].blocks[block];
   if (info.changed) return;
   info.changed = true;

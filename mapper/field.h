@@ -20,9 +20,11 @@
 #pragma once
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <mutex>
 #include <string>
 #include <unordered_map>
 #include <vector>
@@ -97,11 +99,14 @@ class Field {
 
   /// Parameters of a level: numBlocks(level) * kBlockVoxels * channels() floats, block-major,
   /// then voxel (x fastest, then y, then z), then channel. Pointers stay valid until the next
-  /// allocation.
+  /// allocation. Whoever writes through levelData() calls markChanged() (or
+  /// markDensityChanged()) for the blocks written, so that the density bounds stay current;
+  /// blockData() marks its block itself.
   float* levelData(int level) { return levels_[level].data.data(); }
   const float* levelData(int level) const { return levels_[level].data.data(); }
   size_t levelSize(int level) const { return levels_[level].data.size(); }
   float* blockData(int level, int block) {
+    markDensityChanged(level, block);
     return levels_[level].data.data() + static_cast<size_t>(block) * kBlockVoxels * channels_;
   }
   const float* blockData(int level, int block) const {
@@ -115,6 +120,26 @@ class Field {
   Eigen::Vector3f boundsMax() const { return bounds_max_; }
   bool empty() const { return levels_.empty() || levels_[0].blocks.empty(); }
 
+  // ---- Density bounds, for skipping space that cannot contribute to a render ----
+  /// Each block splits into kSubBlocks sub-blocks of kSubDim^3 cells (sub-block s has local
+  /// cell origin 4 * (s & 1, (s >> 1) & 1, s >> 2)). Its bound is the largest raw density
+  /// (channel 0, bias not added) of the (kSubDim + 1)^3 lattice points that trilinear
+  /// interpolation in its cells reads, 0 for unallocated points: an upper bound of the level's
+  /// interpolated raw density anywhere in the sub-block.
+  static constexpr int kSubDim = 4;
+  static constexpr int kSubShift = 2;  // log2(kSubDim)
+  static constexpr int kSubBlocks = 8;
+  /// kSubBlocks bounds per block of the level (block-major), brought up to date first for
+  /// blocks changed since the last call. Thread-safe; pointer valid until the next change.
+  const float* densityBounds(int level) const;
+  /// kSubBlocks flags per block, like densityBounds(): 1 where every channel of every lattice
+  /// point the sub-block's cells read is exactly 0 (never trained: the level adds nothing
+  /// there).
+  const uint8_t* zeroSubBlocks(int level) const;
+  /// Marks a block's density as changed (its bounds and its lower neighbours' are recomputed
+  /// on the next densityBounds()). markChanged() and allocateBlock() call it.
+  void markDensityChanged(int level, int block);
+
   // ---- Point queries (slow path, for export and tests; the renderer has its own loop) ----
   struct Value {
     float raw_density = 0;  // bias + sum of levels; meaningless when !occupied
@@ -127,7 +152,7 @@ class Field {
               const Eigen::Vector3f& dir = Eigen::Vector3f(0, 0, 1)) const;
 
   // ---- Change tracking for FieldUpdate (see mapper/field_io.h) ----
-  /// Marks a block as changed since the last commit.
+  /// Marks a block as changed since the last commit (and its density bounds as stale).
   void markChanged(int level, int block);
   /// Content version: increments on each commit that publishes at least one changed block.
   int64_t version() const { return version_; }
@@ -172,6 +197,12 @@ class Field {
     Eigen::Vector3i dense_min = Eigen::Vector3i::Zero();
     Eigen::Vector3i dense_dim = Eigen::Vector3i::Zero();
     bool use_dense = true;
+    // Density bounds (densityBounds()): kSubBlocks per block, and the blocks whose bounds are
+    // stale (each listed once, flagged in bounds_stale_flag).
+    mutable std::vector<float> bounds;
+    mutable std::vector<uint8_t> zero_sub;
+    mutable std::vector<uint8_t> bounds_stale_flag;
+    mutable std::vector<int> bounds_stale;
 
     int find(int bx, int by, int bz) const {
       if (use_dense) {
@@ -194,8 +225,23 @@ class Field {
            ((static_cast<uint64_t>(bz) & m) << 42);
   }
 
+  // A mutex and a flag that copies of the field get fresh (the bounds themselves are copied).
+  struct BoundsSync {
+    std::mutex mutex;
+    std::atomic<bool> stale{false};
+    BoundsSync() = default;
+    BoundsSync(const BoundsSync& o) : stale(o.stale.load()) {}
+    BoundsSync& operator=(const BoundsSync& o) {
+      stale.store(o.stale.load());
+      return *this;
+    }
+  };
+  void refreshBounds(int level) const;
+  void refreshBoundsIfStale() const;
+
   FieldGeometry geometry_;
   std::vector<Level> levels_;
+  mutable BoundsSync bounds_sync_;
   int channels_ = 0;
   int color_basis_ = 0;
   float density_scale_ = 0;

@@ -4,6 +4,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <sstream>
+#include <stdexcept>
 
 namespace radslam {
 
@@ -102,6 +103,69 @@ FieldUpdate makeFieldSnapshot(Field* field) {
   return u;
 }
 
+SnapshotSender::SnapshotSender(Field* field, int64_t snapshot_id, int max_blocks)
+    : field_(field), snapshot_id_(snapshot_id), max_blocks_(std::max(1, max_blocks)) {
+  checkHost();
+  field->commit();
+  version_ = field->version();
+  for (int l = 0; l < field->numLevels(); ++l)
+    for (int b = 0; b < field->numBlocks(l); ++b) blocks_.emplace_back(l, b);
+  chunk_count_ = std::max<int>(1, (blocks_.size() + max_blocks_ - 1) / max_blocks_);
+}
+
+FieldUpdate SnapshotSender::next() {
+  if (done()) throw std::logic_error("SnapshotSender::next: the snapshot was sent");
+  FieldUpdate u = header(*field_);
+  u.version = version_;
+  u.base_version = 0;
+  u.is_snapshot = true;
+  u.snapshot_id = snapshot_id_;
+  u.chunk_index = sent_;
+  u.chunk_count = chunk_count_;
+  const size_t end = std::min(blocks_.size(), next_ + max_blocks_);
+  for (; next_ < end; ++next_)
+    u.blocks.push_back(blockOf(*field_, blocks_[next_].first, blocks_[next_].second));
+  ++sent_;
+  return u;
+}
+
+SnapshotAssembler::Result SnapshotAssembler::add(const FieldUpdate& chunk, std::string* error) {
+  if (!chunk.is_snapshot) {
+    *error = "field update " + std::to_string(chunk.version) + " is not a snapshot chunk";
+    return Result::kInvalid;
+  }
+  if (chunk.chunk_index == 0) {
+    snapshot_id_ = chunk.snapshot_id;
+    expected_ = 0;
+  } else if (chunk.snapshot_id != snapshot_id_ || chunk.chunk_index != expected_) {
+    *error = "snapshot " + std::to_string(chunk.snapshot_id) + ": chunk " +
+             std::to_string(chunk.chunk_index) + " of " + std::to_string(chunk.chunk_count) +
+             (expected_ > 0 ? ", expected chunk " + std::to_string(expected_)
+                            : ", its first chunk was missed");
+    expected_ = 0;
+    field_ = Field();
+    return Result::kLost;
+  }
+  // Chunk 0 replaces the staging field; later chunks add to it (as an update at its version).
+  FieldUpdate part = chunk;
+  if (chunk.chunk_index > 0) {
+    part.is_snapshot = false;
+    part.base_version = field_.version();
+    part.version = field_.version() + 1;
+  }
+  const ApplyResult r = applyFieldUpdate(part, &field_, error);
+  if (r != ApplyResult::kApplied) {
+    expected_ = 0;
+    field_ = Field();
+    return Result::kInvalid;
+  }
+  field_.setVersion(chunk.version);
+  expected_ = chunk.chunk_index + 1;
+  if (expected_ < chunk.chunk_count) return Result::kIncomplete;
+  expected_ = 0;
+  return Result::kComplete;
+}
+
 const char* applyResultName(ApplyResult result) {
   switch (result) {
     case ApplyResult::kApplied:
@@ -112,6 +176,8 @@ const char* applyResultName(ApplyResult result) {
       return "gap";
     case ApplyResult::kInvalid:
       return "invalid";
+    case ApplyResult::kPartial:
+      return "partial";
   }
   return "?";
 }

@@ -8,6 +8,12 @@
 /// every block and replaces the replica. Applying a mapper's updates in version order, then
 /// one made after its last change, reproduces its field bitwise.
 ///
+/// Snapshots travel in chunks (SnapshotSender), so that no message outgrows what the bus
+/// delivers: taken at version v, each chunk carries the current values of its blocks. A
+/// replica assembles the chunks of one snapshot in order (SnapshotAssembler) and takes the
+/// result at version v once the last one arrived; blocks changed while the chunks were on
+/// their way come again in the mapper's next update, which it bases at v or earlier.
+///
 /// Payload layout "rsvox1": per block, kBlockVoxels * channels float32 values, little-endian,
 /// voxel-major (x fastest, then y, then z) and channel-minor as in Field. The layout string
 /// also names the channel count, the SH degree and the density bias (C99 hex float, exact).
@@ -31,14 +37,55 @@ bool parseFieldLayout(const std::string& layout, const std::vector<double>& voxe
 /// Commits up to max_blocks pending changes (<= 0: all), then returns the blocks committed
 /// after since_version (not a snapshot). An empty block list means nothing changed.
 FieldUpdate makeFieldUpdate(Field* field, int64_t since_version, int max_blocks = 0);
-/// Commits every pending change and returns all blocks.
+/// Commits every pending change and returns all blocks (one message).
 FieldUpdate makeFieldSnapshot(Field* field);
+
+/// A snapshot in chunks of at most max_blocks blocks each: the block list is taken (after a
+/// commit) at construction, each chunk reads the blocks' values when it is made. The field must
+/// outlive the sender and keep its blocks (blocks are only ever added).
+class SnapshotSender {
+ public:
+  SnapshotSender(Field* field, int64_t snapshot_id, int max_blocks);
+  bool done() const { return next_ >= blocks_.size() && sent_ > 0; }
+  int64_t version() const { return version_; }
+  int chunkCount() const { return chunk_count_; }
+  /// The next chunk (is_snapshot, chunk_index, chunk_count, version = version()). Throws
+  /// std::logic_error when done().
+  FieldUpdate next();
+
+ private:
+  const Field* field_;
+  int64_t snapshot_id_;
+  int64_t version_;
+  int max_blocks_;
+  int chunk_count_;
+  std::vector<std::pair<int, int>> blocks_;  // (level, block)
+  size_t next_ = 0;
+  int sent_ = 0;
+};
+
+/// Collects the chunks of a snapshot into a field of its own. Chunks must come in order: a
+/// missing chunk abandons the snapshot (the replica asks for another).
+class SnapshotAssembler {
+ public:
+  enum class Result { kIncomplete, kComplete, kLost, kInvalid };
+  /// Takes a snapshot chunk (update.is_snapshot). kComplete: field() holds the snapshot.
+  Result add(const FieldUpdate& chunk, std::string* error);
+  Field& field() { return field_; }
+  bool inProgress() const { return expected_ > 0; }
+
+ private:
+  Field field_;
+  int64_t snapshot_id_ = -1;
+  int expected_ = 0;  // next chunk index; 0 = none in progress
+};
 
 enum class ApplyResult {
   kApplied,  // the replica is at update.version now
   kStale,    // update.version <= replica version: nothing to do
   kGap,      // base_version > replica version: updates are missing, ask for a snapshot
   kInvalid,  // malformed or incompatible (error says what); the replica is unchanged
+  kPartial,  // a snapshot chunk was stored; the replica changes with the last one
 };
 const char* applyResultName(ApplyResult result);
 

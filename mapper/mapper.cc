@@ -265,6 +265,11 @@ FieldUpdate Mapper::makeSnapshot() {
   return makeFieldSnapshot(&field_);
 }
 
+SnapshotSender Mapper::makeSnapshotSender(int64_t snapshot_id, int max_blocks) {
+  if (!field_.initialized()) throw std::logic_error("makeSnapshotSender: no field yet");
+  return SnapshotSender(&field_, snapshot_id, max_blocks);
+}
+
 MarchParams Mapper::marchParams() const {
   MarchParams mp;
   mp.step_fine = params_.render_step_fine;

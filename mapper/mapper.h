@@ -8,6 +8,7 @@
 
 #include "common/types.h"
 #include "mapper/field.h"
+#include "mapper/field_io.h"
 #include "mapper/keyframe_store.h"
 #include "mapper/trainer.h"
 #include "mapper/volume_renderer.h"
@@ -77,6 +78,9 @@ class Mapper {
   /// <= 0 = all); see mapper/field_io.h.
   FieldUpdate makeUpdate(int64_t since_version, int max_blocks = 0);
   FieldUpdate makeSnapshot();
+  /// A snapshot in chunks of at most max_blocks blocks (mapper/field_io.h). The field must be
+  /// initialized; the sender is invalid after reset().
+  SnapshotSender makeSnapshotSender(int64_t snapshot_id, int max_blocks);
 
   /// Renders any pinhole view (deterministic given the field).
   RenderImages render(const SE3& T_world_cam, const CameraModel& camera) const;

@@ -1,5 +1,6 @@
 #include "mapper/mapper_node.h"
 
+#include <algorithm>
 #include <filesystem>
 #include <iostream>
 
@@ -57,6 +58,7 @@ void MapperNode::onControl(const Control& control) {
       snapshot_requested_ = true;
       break;
     case ControlCommand::kReset:
+      snapshot_.reset();  // its blocks are gone
       mapper_.reset();
       queue_.clear();
       frame_poses_.clear();
@@ -92,12 +94,29 @@ void MapperNode::publishUpdate(bool flush) {
   } while (flush);
 }
 
-void MapperNode::publishSnapshot() {
-  FieldUpdate u = mapper_.makeSnapshot();
+void MapperNode::startSnapshot() {
+  snapshot_requested_ = false;
+  if (!mapper_.field().initialized()) {
+    FieldUpdate u = mapper_.makeSnapshot();
+    u.header.utime = wallClockMicros();
+    bus_->publish(channel::kField, u);
+    return;
+  }
+  // One chunk per update period in place of the delta: a snapshot never outgrows the FIELD
+  // rate (a whole one would be one message of the whole field).
+  snapshot_.emplace(mapper_.makeSnapshotSender(++snapshot_seq_, params_.max_blocks_per_update));
+}
+
+void MapperNode::publishSnapshotChunk() {
+  FieldUpdate u = snapshot_->next();
   u.header.utime = wallClockMicros();
   bus_->publish(channel::kField, u);
-  // Deltas stay based on the last delta, so replicas that missed the snapshot keep up too.
-  snapshot_requested_ = false;
+  if (snapshot_->done()) {
+    // The next delta covers every block changed since the snapshot was taken. Deltas stay
+    // based no later than the last one, so replicas that missed the snapshot keep up too.
+    delta_base_ = std::min(delta_base_, snapshot_->version());
+    snapshot_.reset();
+  }
 }
 
 void MapperNode::publishPoses() {
@@ -158,10 +177,10 @@ bool MapperNode::spinOnce(int timeout_ms) {
     rays_ += last_stats_.rays;
   }
   // (A snapshot of no field would mean nothing to a replica: wait until there is one.)
-  if (snapshot_requested_ && mapper_.field().initialized() &&
+  if (snapshot_requested_ && !snapshot_ && mapper_.field().initialized() &&
       now() - last_snapshot_ >= params_.snapshot_min_period_s) {
     last_snapshot_ = now();
-    publishSnapshot();
+    startSnapshot();
   }
   if (save_requested_) {
     save_requested_ = false;
@@ -172,7 +191,11 @@ bool MapperNode::spinOnce(int timeout_ms) {
   const double t = now();
   if (t - last_update_ >= params_.update_period_s) {
     last_update_ = t;
-    publishUpdate(false);
+    if (snapshot_) {
+      publishSnapshotChunk();
+    } else {
+      publishUpdate(false);
+    }
     publishPoses();
   }
   if (t - last_status_ >= params_.status_period_s) {
@@ -194,6 +217,7 @@ void MapperNode::finish() {
     }
   }
   train_s_ += now() - t0;
+  while (snapshot_) publishSnapshotChunk();
   publishUpdate(true);
   publishPoses();
   if (!out_dir_.empty()) {

@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cstdint>
 #include <map>
+#include <optional>
 #include <string>
 
 #include "common/bus.h"
@@ -45,7 +46,10 @@ class MapperNode {
   void onControl(const Control& control);
   void addQueuedKeyframes();
   void publishUpdate(bool flush);
-  void publishSnapshot();
+  /// Starts a snapshot (sent a chunk per update period) or, without a field yet, sends the
+  /// empty one.
+  void startSnapshot();
+  void publishSnapshotChunk();
   void publishPoses();
   void publishStatus();
   void saveCheckpoint(const std::string& path);
@@ -61,6 +65,8 @@ class MapperNode {
   std::map<int64_t, PoseStamped> frame_poses_;
   int64_t delta_base_ = 0;  // version of the last published delta update
   bool snapshot_requested_ = false;
+  std::optional<SnapshotSender> snapshot_;  // in progress
+  int64_t snapshot_seq_ = 0;
   bool stop_ = false;
   std::string save_request_;  // checkpoint path asked for by CONTROL SAVE ("" = none)
   bool save_requested_ = false;

@@ -153,10 +153,56 @@ using Lanes = Eigen::Array4f;
 }
 [[gnu::always_inline]] inline Lanes sigmoid4(const Lanes& x) { return 1.f / (1.f + fastExp4(-x)); }
 
+// What the march does in a fine sub-block (Field::kSubDim^3 fine cells).
+enum class SubBlock {
+  kSample,    // evaluate the field at each sample
+  kSkip,      // density bound below MarchParams::skip_thickness: step over it
+  kConstant,  // every level reads zeros there: density softplus(bias), colour sigmoid(0)
+};
+
+// Judges the fine sub-block (sx, sy, sz) (fine lattice index >> kSubShift) holding p from the
+// tables of Field::densityBounds and Field::zeroSubBlocks: its entry plus, per coarser level,
+// the entry of the sub-block holding p (which holds the whole fine sub-block, the voxel sizes
+// being integer multiples). Unallocated fine blocks are not judged here (the march jumps over
+// them itself). *bound: the sub-block's raw density bound, bias included (+inf when unknown);
+// complete only with need_bound.
+inline SubBlock judgeSubBlock(const Field& field, int fine, int sx, int sy, int sz,
+                              const float* const* bounds, const uint8_t* const* zeros,
+                              const float* p, float bias, float skip_raw, bool need_bound,
+                              float* bound_out) {
+  *bound_out = INFINITY;
+  // Two sub-blocks per block and axis: the low bit of a sub-block index picks the half, the
+  // rest (arithmetic shift, floors negatives) is the block.
+  static_assert(Field::kBlockDim == 2 * Field::kSubDim, "two sub-blocks per block and axis");
+  auto sub_of = [](int x, int y, int z) { return (x & 1) | ((y & 1) << 1) | ((z & 1) << 2); };
+  const int fb = field.findBlock(fine, sx >> 1, sy >> 1, sz >> 1);
+  if (fb < 0) return SubBlock::kSample;
+  size_t entry = static_cast<size_t>(fb) * Field::kSubBlocks + sub_of(sx, sy, sz);
+  float bound = bias + bounds[fine][entry];
+  bool zero = zeros[fine][entry];
+  for (int l = 0; l < fine && (zero || need_bound || bound < skip_raw); ++l) {
+    const float inv = field.invVoxelSize(l);
+    const int x = static_cast<int>(std::floor(p[0] * inv)) >> Field::kSubShift;
+    const int y = static_cast<int>(std::floor(p[1] * inv)) >> Field::kSubShift;
+    const int z = static_cast<int>(std::floor(p[2] * inv)) >> Field::kSubShift;
+    const int b = field.findBlock(l, x >> 1, y >> 1, z >> 1);
+    // No entry for an unallocated block (its cells also read its neighbours' points).
+    if (b < 0) return SubBlock::kSample;
+    entry = static_cast<size_t>(b) * Field::kSubBlocks + sub_of(x, y, z);
+    bound += bounds[l][entry];
+    zero = zero && zeros[l][entry];
+  }
+  *bound_out = bound;
+  if (bound < skip_raw) return SubBlock::kSkip;
+  return zero ? SubBlock::kConstant : SubBlock::kSample;
+}
+
 // Samples at t = t0, t0 + step, ... through allocated space; at an unallocated coarse or fine
 // block the ray jumps just past the block's exit face. The per-sample work is the fine cell
 // (cached per level), the trilinear sums and the shading; block lookups happen only when a
-// cursor enters a new block.
+// cursor enters a new block. Each fine sub-block entered is judged once (judgeSubBlock): where
+// every level reads zeros the samples are composited without lookups (the same values, so the
+// render is unchanged), and the approximations of MarchParams (skip, adaptive step) act there.
 template <int NB>
 RayOutput marchImpl(const Field& field, const Ray& ray, const MarchParams& params,
                     const Eigen::Vector3f& bg) {
@@ -188,6 +234,30 @@ RayOutput marchImpl(const Field& field, const Ray& ray, const MarchParams& param
     cursor[l].level = l;
   }
   int coarse_block[3] = {INT32_MIN, 0, 0};  // last coarse block found allocated
+  // Sub-block tables (judgeSubBlock): per level, the density bounds and zero flags; the raw
+  // density (bias included) below which a sub-block is skipped (softplus(raw) < skip_thickness,
+  // softplus being increasing); the last fine sub-block judged and the verdict.
+  const float* bounds[Field::kMaxLevels] = {};
+  const uint8_t* zeros[Field::kMaxLevels] = {};
+  for (int l = 0; l < levels; ++l) {
+    bounds[l] = field.densityBounds(l);
+    zeros[l] = field.zeroSubBlocks(l);
+  }
+  const float skip_raw =
+      params.skip_thickness > 0 ? std::log(std::expm1(params.skip_thickness)) : -INFINITY;
+  const float sub_edge = static_cast<float>(field.voxelSize(fine)) * Field::kSubDim;  // m
+  int sub_key[3] = {INT32_MIN, 0, 0};
+  SubBlock sub_state = SubBlock::kSample;
+  // Adaptive step (max_sample_thickness > 0): the current sub-block's step (m) and where the ray
+  // leaves it.
+  const bool adaptive = params.max_sample_thickness > 0;
+  const float max_step = std::max(fine_step, static_cast<float>(field.voxelSize(fine)) *
+                                                 std::max(params.step_fine, params.max_step_fine));
+  float sub_step = fine_step, sub_exit = INFINITY;
+  // The field where every level reads zeros, computed as the lanes below compute it, so that
+  // a constant sub-block composites exactly what sampling it would.
+  const float const_decay = fastExp4(-(softplus4(bias + Lanes::Zero()) * scale) * fine_step)[0];
+  const float const_color = sigmoid4(Lanes::Zero())[0];
   float transmit = 1.f;
   double s0 = 0, s1 = 0, s2 = 0;  // sum w, sum w t, sum w t^2
   float color[3] = {0, 0, 0};
@@ -200,10 +270,11 @@ RayOutput marchImpl(const Field& field, const Ray& ray, const MarchParams& param
   bool opaque = false;
   while (!opaque && t < t1 && transmit > params.min_transmittance) {
     float tb[kLanes];
+    float db[kLanes];  // intervals, m
     float raw[C][kLanes] = {};
     int n = 0;
     float ts = t;
-    for (; n < kLanes && ts < t1; ts += fine_step) {
+    for (float step = fine_step; n < kLanes && ts < t1; ts += step) {
       const float p[3] = {o[0] + ts * d[0], o[1] + ts * d[1], o[2] + ts * d[2]};
       // Empty space: skip the whole unallocated coarse block, else the fine block (only as the
       // batch's first sample: a later one ends the batch and starts the next).
@@ -216,6 +287,60 @@ RayOutput marchImpl(const Field& field, const Ray& ray, const MarchParams& param
           break;
         }
         std::copy(cb, cb + 3, coarse_block);
+      }
+      {
+        const float inv = cursor[fine].inv;
+        const int sx = static_cast<int>(std::floor(p[0] * inv)) >> Field::kSubShift;
+        const int sy = static_cast<int>(std::floor(p[1] * inv)) >> Field::kSubShift;
+        const int sz = static_cast<int>(std::floor(p[2] * inv)) >> Field::kSubShift;
+        if (sx != sub_key[0] || sy != sub_key[1] || sz != sub_key[2]) {
+          sub_key[0] = sx;
+          sub_key[1] = sy;
+          sub_key[2] = sz;
+          float bound;
+          sub_state = judgeSubBlock(field, fine, sx, sy, sz, bounds, zeros, p, bias, skip_raw,
+                                    adaptive, &bound);
+          if (adaptive) {
+            // Steps of at most max_sample_thickness where the bound allows (softplus(bound) is
+            // the thickness per fine voxel), never past the sub-block's exit.
+            const float thickness = softplus(bound) * scale;  // 1/m
+            sub_step = std::clamp(params.max_sample_thickness / thickness, fine_step, max_step);
+            sub_exit = cubeExit(ray, p, sub_edge);
+          }
+        }
+        if (adaptive) step = std::min(sub_step, std::max(sub_exit - ts, 0.f) + nudge);
+        if (sub_state == SubBlock::kSkip) {
+          // Over the rest of the sub-block, staying on the sample grid; the loop's increment
+          // adds the last step.
+          const float steps = std::ceil((cubeExit(ray, p, sub_edge) - ts) / fine_step);
+          ts += std::max(0.f, steps - 1.f) * fine_step;
+          step = fine_step;
+          continue;
+        }
+        if (sub_state == SubBlock::kConstant) {
+          // The batch so far goes first; this sample starts the next one.
+          if (n > 0) break;
+          // Samples of a constant field: no lookups, the compositing of the loop below.
+          const float exit = std::min(cubeExit(ray, p, sub_edge), t1);
+          const float decay = step == fine_step
+                                  ? const_decay
+                                  : fastExp4(-(softplus4(bias + Lanes::Zero()) * scale) * step)[0];
+          do {
+            if (!(transmit > params.min_transmittance)) {
+              opaque = true;
+              break;
+            }
+            const float w = transmit * (1.f - decay);
+            transmit *= decay;
+            s0 += w;
+            s1 += double(w) * ts;
+            s2 += double(w) * ts * ts;
+            for (int k = 0; k < 3; ++k) color[k] += w * const_color;
+            ++samples;
+            ts += step;
+          } while (ts < exit);
+          break;
+        }
       }
       float frac[3];
       moveTo(field, p, &cursor[fine], frac);
@@ -230,12 +355,13 @@ RayOutput marchImpl(const Field& field, const Ray& ray, const MarchParams& param
         gatherCell(cursor[l], frac, r);
       }
       for (int ch = 0; ch < C; ++ch) raw[ch][n] = r[ch];
+      db[n] = step;
       tb[n++] = ts;
     }
     t = ts;
     if (n == 0) continue;
     const Lanes sigma = softplus4(bias + Lanes(raw[0])) * scale;
-    const Lanes decay = fastExp4(-sigma * fine_step);
+    const Lanes decay = adaptive ? fastExp4(-sigma * Lanes(db)) : fastExp4(-sigma * fine_step);
     Lanes c[3];
     for (int k = 0; k < 3; ++k) {
       Lanes x(raw[1 + k]);

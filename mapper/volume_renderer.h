@@ -168,6 +168,19 @@ struct MarchParams {
   float near = 0.05f;               // m
   float far = 100.f;                // m
   float min_transmittance = 1e-4f;  // early termination
+  /// Empty-space skipping beyond unallocated blocks: a sub-block of Field::kSubDim^3 fine cells
+  /// where the field's density bound (Field::densityBounds, all levels summed) gives less than
+  /// this optical thickness per fine voxel (sigma * fine voxel size) is stepped over whole,
+  /// staying on the sample grid. A skipped sub-block would have absorbed at most this much per
+  /// fine voxel travelled in it. 0 = exact march (no skipping).
+  float skip_thickness = 0;
+  /// Adaptive step: in each sub-block the step grows from step_fine up to max_step_fine fine
+  /// voxels while the sub-block's density bound keeps the optical thickness of one step below
+  /// this (a step ends at the sub-block's exit at the latest). Exact for a constant field
+  /// (transmittance depends on the distance only), approximate where the field varies within
+  /// a step. 0 = fixed step.
+  float max_sample_thickness = 0;
+  float max_step_fine = 4;
   /// Depth and variance normalised by the weight sum W (the depth of the surface hit, not
   /// D* = sum w t); pixels with W < min_weight get depth 0 (unknown) and sigma 0.
   bool normalize_depth = true;

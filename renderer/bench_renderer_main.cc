@@ -1,11 +1,14 @@
 // radslam-bench-renderer: render latency of the field replica on one core, for 320x240 and
-// 640x480 views of a field trained on the synthetic room (mapper's trainer), median of runs.
+// 640x480 views of a field trained on the synthetic room (mapper's trainer) or loaded from a
+// mapper checkpoint, median of runs.
 #include <time.h>
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <iostream>
+#include <memory>
 #include <vector>
 
 #include "common/bus.h"
@@ -51,10 +54,42 @@ void measure(const FieldReplica& replica, const std::vector<Keyframe>& keyframes
   std::sort(wall.begin(), wall.end());
   const double med = cpu[cpu.size() / 2];
   std::printf(
-      "%dx%d %-24s step %.2f fine voxels, stop at T < %g: %5.1f samples/ray, median %7.1f ms "
-      "CPU (%7.1f ms wall) over %d runs: %5.1f views/s on one core\n",
+      "%dx%d %-20s step %.2f, T < %g, skip < %g, adaptive %g/%g: %5.1f samples/ray, median "
+      "%7.1f ms CPU (%7.1f ms wall) over %d runs: %5.1f views/s on one core\n",
       camera.width, camera.height, label, params.step_fine, params.min_transmittance,
-      samples / rays, 1e3 * med, 1e3 * wall[wall.size() / 2], runs, 1.0 / med);
+      params.skip_thickness, params.max_sample_thickness, params.max_step_fine, samples / rays,
+      1e3 * med, 1e3 * wall[wall.size() / 2], runs, 1.0 / med);
+}
+
+// How far a render with `params` is from the exact march over the first `views` keyframe
+// poses: colour PSNR (dB, RGB in [0, 1]), the largest depth difference where both have a depth,
+// and the pixels with a depth in one only.
+void compareWithExact(const FieldReplica& replica, const std::vector<Keyframe>& keyframes,
+                      const CameraModel& camera, const MarchParams& exact,
+                      const MarchParams& params, const char* label, int views) {
+  double sq = 0, max_depth = 0;
+  long long values = 0, validity = 0;
+  for (int i = 0; i < views; ++i) {
+    const SE3& T = keyframes[i % keyframes.size()].T_world_cam;
+    const RenderImages a = replica.render(T, camera, &exact);
+    const RenderImages b = replica.render(T, camera, &params);
+    cv::Mat diff;
+    cv::subtract(a.color, b.color, diff);
+    sq += diff.dot(diff);
+    values += static_cast<long long>(diff.total()) * 3;
+    for (int v = 0; v < camera.height; ++v)
+      for (int u = 0; u < camera.width; ++u) {
+        const float da = a.depth.at<float>(v, u), db = b.depth.at<float>(v, u);
+        if ((da > 0) != (db > 0)) ++validity;
+        if (da > 0 && db > 0) max_depth = std::max(max_depth, double(std::abs(da - db)));
+      }
+  }
+  const double mse = sq / std::max<long long>(1, values);
+  std::printf(
+      "%dx%d %-22s vs exact over %d views: colour PSNR %.1f dB, max depth difference %.4f m, "
+      "%lld pixels with a depth in one only\n",
+      camera.width, camera.height, label, views, mse > 0 ? 10 * std::log10(1 / mse) : INFINITY,
+      max_depth, validity);
 }
 
 // A small LCM log of a mapping run (FIELD updates as training goes, CAMERA, POSE, KEYFRAME,
@@ -98,8 +133,10 @@ void writeDemoLog(const std::string& path, const DemoFieldOptions& options) {
 
 int run(int argc, char** argv) {
   CommandLine cl(argc, argv,
-                 "radslam-bench-renderer [--keyframes 8] [--train-width 320] [--steps 200] "
-                 "[--runs 7] [--preview-step 1] [--preview-transmittance 0.01] "
+                 "radslam-bench-renderer [--checkpoint RUN/mapper.ckpt] [--keyframes 8] "
+                 "[--train-width 320] [--steps 200] [--runs 7] [--preview-step 1] "
+                 "[--preview-transmittance 0.01] [--fast-thickness 0.05] [--fast-max-step 4] "
+                 "[--exact-runs 0] [--compare-views 3] "
                  "[--write-log FILE.lcmlog]");
   if (cl.helpRequested()) {
     std::cout << cl.usage() << "\n";
@@ -114,6 +151,11 @@ int run(int argc, char** argv) {
   const double preview_step = cl.getDouble("preview-step", 1.0);
   const double preview_transmittance = cl.getDouble("preview-transmittance", 0.01);
   const std::string log_path = cl.get("write-log", "");
+  const std::string checkpoint = cl.get("checkpoint", "");
+  const int exact_runs = cl.getInt("exact-runs", 0);
+  const double fast_thickness = cl.getDouble("fast-thickness", 0.05);
+  const double fast_max_step = cl.getDouble("fast-max-step", 4);
+  const int compare_views = cl.getInt("compare-views", 3);
   cl.finish();
   if (!log_path.empty()) {
     writeDemoLog(log_path, options);
@@ -121,24 +163,65 @@ int run(int argc, char** argv) {
   }
 
   std::vector<Keyframe> keyframes;
-  const auto mapper = makeDemoMapper(options, &keyframes);
+  std::unique_ptr<Mapper> mapper;
+  if (checkpoint.empty()) {
+    mapper = makeDemoMapper(options, &keyframes);
+  } else {
+    // Views from the checkpoint's keyframe poses (as the mapper refined them).
+    mapper = std::make_unique<Mapper>();
+    mapper->loadCheckpoint(checkpoint);
+    const KeyframeStore& store = mapper->keyframes();
+    for (int i = 0; i < store.size(); ++i) {
+      const KeyframeEntry& entry = store.entry(i);
+      Keyframe kf = entry.keyframe;
+      kf.T_world_cam = entry.T_world_cam;
+      keyframes.push_back(kf);
+    }
+    if (keyframes.empty() || mapper->field().empty()) {
+      std::cerr << "radslam-bench-renderer: checkpoint " << checkpoint
+                << " has no keyframes or an empty field\n";
+      return 1;
+    }
+  }
   FieldReplica replica;  // one thread, the mapper's march parameters
   std::string error;
   if (replica.apply(mapper->makeSnapshot(), &error) != ApplyResult::kApplied) {
     std::cerr << "radslam-bench-renderer: snapshot not applied: " << error << "\n";
     return 1;
   }
-  std::printf("field: %zu blocks, fine voxel %.4f m, trained %d steps on %d keyframes %dx%d\n",
+  std::printf("field: %zu blocks, fine voxel %.4f m, %s, %zu keyframes %dx%d\n",
               replica.field().totalBlocks(), replica.field().geometry().fineVoxelSize(),
-              options.train_steps, options.keyframes, keyframes[0].camera.width,
-              keyframes[0].camera.height);
-  MarchParams preview = replica.marchParams();
+              checkpoint.empty() ? "demo field" : checkpoint.c_str(), keyframes.size(),
+              keyframes[0].camera.width, keyframes[0].camera.height);
+  {
+    // The density bounds of every block, built once (then kept current per changed block).
+    const double c0 = cpuSeconds();
+    replica.field().densityBounds(0);
+    std::printf("density bounds of all blocks built in %.1f ms CPU\n", 1e3 * (cpuSeconds() - c0));
+  }
+  const MarchParams mapper_march = replica.marchParams();
+  MarchParams exact = mapper_march;
+  exact.skip_thickness = 0;
+  // The mapper's march with the adaptive step, and a preview that also steps and stops sooner.
+  MarchParams fast = mapper_march;
+  fast.max_sample_thickness = static_cast<float>(fast_thickness);
+  fast.max_step_fine = static_cast<float>(fast_max_step);
+  MarchParams preview = fast;
   preview.step_fine = static_cast<float>(preview_step);
   preview.min_transmittance = static_cast<float>(preview_transmittance);
   for (const int width : {320, 640}) {
     const CameraModel camera = scaledCamera(keyframes[0].camera, width);
-    measure(replica, keyframes, camera, replica.marchParams(), "exact (mapper's march)", runs);
+    if (exact_runs > 0)
+      measure(replica, keyframes, camera, exact, "exact (fixed step)", exact_runs);
+    measure(replica, keyframes, camera, mapper_march, "mapper's march", runs);
+    measure(replica, keyframes, camera, fast, "adaptive step", runs);
     measure(replica, keyframes, camera, preview, "preview", runs);
+    if (compare_views > 0) {
+      compareWithExact(replica, keyframes, camera, exact, mapper_march, "mapper's march",
+                       compare_views);
+      compareWithExact(replica, keyframes, camera, exact, fast, "adaptive step", compare_views);
+      compareWithExact(replica, keyframes, camera, exact, preview, "preview", compare_views);
+    }
   }
   return 0;
 }

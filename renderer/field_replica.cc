@@ -18,6 +18,31 @@ ApplyResult FieldReplica::apply(const FieldUpdate& update, std::string* error) {
     }
     return ApplyResult::kStale;
   }
+  if (update.is_snapshot && update.chunk_count > 1) {
+    // Only a replica that needs it assembles a snapshot (it costs a copy of the field).
+    if (!waiting_snapshot_ && field_.initialized() && !assembler_.inProgress()) {
+      return ApplyResult::kStale;
+    }
+    last_progress_s_ = now_s_;
+    switch (assembler_.add(update, &why)) {
+      case SnapshotAssembler::Result::kIncomplete:
+        return ApplyResult::kPartial;
+      case SnapshotAssembler::Result::kComplete:
+        field_ = std::move(assembler_.field());
+        assembler_.field() = Field();
+        waiting_snapshot_ = false;
+        return ApplyResult::kApplied;
+      case SnapshotAssembler::Result::kLost:
+        // A snapshot joined half-way (or one that lost a chunk): the next one is ours.
+        ++gaps_;
+        if (!waiting_snapshot_) requestSnapshot(why);
+        if (error) *error = why;
+        return ApplyResult::kGap;
+      case SnapshotAssembler::Result::kInvalid:
+        if (error) *error = why;
+        return ApplyResult::kInvalid;
+    }
+  }
   const ApplyResult result = applyFieldUpdate(update, &field_, &why);
   switch (result) {
     case ApplyResult::kApplied:
@@ -25,23 +50,34 @@ ApplyResult FieldReplica::apply(const FieldUpdate& update, std::string* error) {
       break;
     case ApplyResult::kGap:
       ++gaps_;
-      if (!waiting_snapshot_) {
-        waiting_snapshot_ = true;
-        if (request_snapshot_) request_snapshot_(why);
-      }
+      if (!waiting_snapshot_) requestSnapshot(why);
       break;
     case ApplyResult::kInvalid:
       // A geometry change (mapper restarted with other voxel sizes) needs a snapshot too.
       if (!waiting_snapshot_ && why.find("needs a snapshot") != std::string::npos) {
-        waiting_snapshot_ = true;
-        if (request_snapshot_) request_snapshot_(why);
+        requestSnapshot(why);
       }
       break;
     case ApplyResult::kStale:
+    case ApplyResult::kPartial:
       break;
   }
   if (error) *error = why;
   return result;
+}
+
+void FieldReplica::requestSnapshot(const std::string& reason) {
+  waiting_snapshot_ = true;
+  last_progress_s_ = now_s_;
+  if (request_snapshot_) request_snapshot_(reason);
+}
+
+void FieldReplica::retryStalledSnapshot(double now_s, double stall_s) {
+  now_s_ = now_s;
+  if (waiting_snapshot_ && now_s - last_progress_s_ > stall_s) {
+    requestSnapshot("no snapshot arrived within " + std::to_string(static_cast<int>(stall_s)) +
+                    " s of asking");
+  }
 }
 
 MarchParams FieldReplica::marchParams() const {

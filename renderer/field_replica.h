@@ -42,6 +42,9 @@ class FieldReplica {
   const Field& field() const { return field_; }
   int64_t version() const { return field_.initialized() ? field_.version() : version_empty_; }
   bool waitingForSnapshot() const { return waiting_snapshot_; }
+  /// Asks again for a snapshot asked for more than stall_s ago (s) that made no progress since
+  /// (a lost request or a lost chunk). now_s: any monotonic clock, s.
+  void retryStalledSnapshot(double now_s, double stall_s);
   int64_t gaps() const { return gaps_; }
 
   /// The mapper's march parameters for this field (what render() uses by default).
@@ -58,7 +61,12 @@ class FieldReplica {
   VolumeRenderer renderer_;
   SnapshotRequest request_snapshot_;
   int64_t version_empty_ = 0;  // version of an (empty) replica before the field exists
+  void requestSnapshot(const std::string& reason);
+
   bool waiting_snapshot_ = false;
+  SnapshotAssembler assembler_;
+  double now_s_ = 0;            // last time seen by retryStalledSnapshot
+  double last_progress_s_ = 0;  // last request or snapshot chunk
   int64_t gaps_ = 0;
 };
 

@@ -13,6 +13,9 @@
 namespace radslam {
 namespace {
 
+// A snapshot asked for that makes no progress for this long (s) is asked for again.
+constexpr double kSnapshotStallS = 15.0;
+
 // Warn about the first few of a kind, then every 100th, so a bad stream cannot flood the log.
 bool shouldWarn(int64_t count) { return count <= 5 || count % 100 == 0; }
 
@@ -105,6 +108,8 @@ RendererNode::RendererNode(Bus* bus, RendererParams params, std::string out_dir)
   bus_->subscribe<PoseStamped>(channel::kGroundTruth,
                                [this](const PoseStamped& p) { viewer_.addGroundTruth(p); });
   bus_->subscribe<Status>(channel::kStatus, [this](const Status& s) { viewer_.setStatus(s); });
+  bus_->subscribe<ObjectList>(channel::kObjects,
+                              [this](const ObjectList& o) { viewer_.addObjects(o); });
   bus_->subscribe<Control>(channel::kControl, [this](const Control& c) { onControl(c); });
   if (params_.follow_width > 0) follow_thread_ = std::thread([this] { followLoop(); });
   reporter_.setState(ProcessState::kRunning);
@@ -232,6 +237,10 @@ void RendererNode::publishStatus(ProcessState state) {
 int RendererNode::spinOnce(int timeout_ms) {
   const int handled = bus_->handle(timeout_ms);
   const int64_t now = wallClockMicros();
+  {
+    std::unique_lock<std::shared_mutex> lock(field_mutex_);
+    replica_.retryStalledSnapshot(now * 1e-6, kSnapshotStallS);
+  }
   if (now - last_status_us_ >= static_cast<int64_t>(1e6 / params_.status_rate_hz)) {
     last_status_us_ = now;
     publishStatus(ProcessState::kRunning);

@@ -2,6 +2,7 @@
 
 #include <httplib.h>
 
+#include <chrono>
 #include <cmath>
 #include <cstdlib>
 #include <fstream>
@@ -197,7 +198,15 @@ int ViewerServer::start(const std::string& host, int port) {
   }
   if (port_ <= 0)
     throw std::runtime_error("viewer: cannot bind http://" + host + ":" + std::to_string(port));
-  thread_ = std::thread([this] { server_->listen_after_bind(); });
+  listen_returned_ = false;
+  thread_ = std::thread([this] {
+    server_->listen_after_bind();
+    listen_returned_ = true;
+  });
+  // httplib's stop() does nothing before the loop runs: a stop() right after start() would
+  // leave the thread listening forever.
+  while (!server_->is_running() && !listen_returned_)
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
   return port_;
 }
 

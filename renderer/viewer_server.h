@@ -3,6 +3,7 @@
 // It runs on its own threads; the pipeline never waits for it.
 #pragma once
 
+#include <atomic>
 #include <functional>
 #include <map>
 #include <memory>
@@ -48,6 +49,7 @@ class ViewerServer {
   std::map<std::string, std::pair<std::string, std::string>> assets_;
   std::unique_ptr<httplib::Server> server_;
   std::thread thread_;
+  std::atomic<bool> listen_returned_{false};
   int port_ = -1;
 };
 

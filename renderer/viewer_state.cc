@@ -95,6 +95,16 @@ void ViewerState::addGroundTruth(const PoseStamped& pose) {
   ground_truth_[pose.frame_index] = pose.T_world_cam.translation();
 }
 
+void ViewerState::addObjects(const ObjectList& objects) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (const TrackedObject& o : objects.objects) {
+    ObjectTrack& track = objects_[o.object_id];
+    track.class_id = o.class_id;
+    track.joint = o.joint_type;
+    track.positions[objects.frame_index] = o.T_world_object.translation();
+  }
+}
+
 void ViewerState::addKeyframe(int32_t keyframe_id) {
   std::lock_guard<std::mutex> lock(mutex_);
   keyframes_[keyframe_id] = true;
@@ -195,6 +205,14 @@ std::string ViewerState::stateJson() const {
   }
   o << ",\"trajectory\":" << plotPoints(trajectory_);
   o << ",\"ground_truth\":" << plotPoints(ground_truth_);
+  o << ",\"objects\":[";
+  for (auto it = objects_.begin(); it != objects_.end(); ++it) {
+    if (it != objects_.begin()) o << ",";
+    o << "{\"id\":" << it->first << ",\"class\":" << it->second.class_id << ",\"joint\":\""
+      << jointTypeName(it->second.joint) << "\",\"track\":" << plotPoints(it->second.positions)
+      << "}";
+  }
+  o << "]";
   o << ",\"images\":{\"camera\":" << image_seq_[0] << ",\"render\":" << image_seq_[1]
     << ",\"depth\":" << image_seq_[2] << ",\"sigma\":" << image_seq_[3] << "}";
   o << ",\"status\":[";

@@ -24,6 +24,8 @@ class ViewerState {
   /// Tracked pose (also refreshed poses of earlier frames, keyed by frame index).
   void addPose(const PoseStamped& pose);
   void addGroundTruth(const PoseStamped& pose);
+  /// Tracked moving objects of a frame (channel OBJECTS): their tracks are plotted.
+  void addObjects(const ObjectList& objects);
   void addKeyframe(int32_t keyframe_id);
   void setStatus(const Status& status);
   /// The follow view (rendered at the latest pose): BGR colour, depth and sigma (m).
@@ -49,6 +51,12 @@ class ViewerState {
   int64_t pose_seq_ = 0;
   std::map<int64_t, Eigen::Vector3d> trajectory_;    // frame index -> camera centre (world, m)
   std::map<int64_t, Eigen::Vector3d> ground_truth_;  // likewise
+  struct ObjectTrack {
+    int32_t class_id = 0;
+    JointType joint = JointType::kFree;
+    std::map<int64_t, Eigen::Vector3d> positions;  // frame index -> object origin (world, m)
+  };
+  std::map<int32_t, ObjectTrack> objects_;  // by object id
   std::map<int32_t, bool> keyframes_;
   std::map<std::string, Status> status_;
   cv::Mat render_, depth_, sigma_;

@@ -23,18 +23,6 @@ int jointDof(JointType type) {
                               std::to_string(static_cast<int>(type)));
 }
 
-const char* jointTypeName(JointType type) {
-  switch (type) {
-    case JointType::kPlanar:
-      return "planar";
-    case JointType::kRevolute:
-      return "revolute";
-    case JointType::kFree:
-      return "free";
-  }
-  return "unknown";
-}
-
 JointBasis jointBasis(JointType type) {
   const int k = jointDof(type);
   JointBasis A = JointBasis::Zero(6, k);

@@ -35,8 +35,6 @@ using JointMatrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, 6, 
 
 /// Degrees of freedom: free 6, planar 3, revolute 1.
 int jointDof(JointType type);
-/// "free", "planar" or "revolute".
-const char* jointTypeName(JointType type);
 
 /// The twist basis A of a joint, in its own frame (see the header comment).
 JointBasis jointBasis(JointType type);

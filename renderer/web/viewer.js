@@ -36,12 +36,16 @@ function drawToCanvas(canvas, img) {
 }
 
 // ---- trajectory plot: top view (x right, z up on screen) ----
-function drawTrajectory(est, gt) {
+// Moving objects (OBJECTS): one track each, labelled with id and joint.
+const kObjectColours = ['#6e6', '#e6e', '#ee6', '#6ee', '#f88'];
+
+function drawTrajectory(est, gt, objects) {
   const c = $('trajectory');
   const g = c.getContext('2d');
   g.fillStyle = '#000';
   g.fillRect(0, 0, c.width, c.height);
-  const all = est.concat(gt);
+  const tracks = (objects || []).filter((o) => o.track.length > 0);
+  const all = tracks.reduce((pts, o) => pts.concat(o.track), est.concat(gt));
   if (all.length === 0) {
     g.fillStyle = '#888';
     g.fillText('no poses yet', 10, 20);
@@ -71,6 +75,12 @@ function drawTrajectory(est, gt) {
   };
   line(gt, '#fb4');
   line(est, '#4af');
+  tracks.forEach((o, i) => {
+    const colour = kObjectColours[i % kObjectColours.length];
+    line(o.track, colour);
+    const [lx, lz] = o.track[o.track.length - 1];
+    g.fillText('object ' + o.id + ' (' + o.joint + ')', px(lx) + 6, pz(lz) - 6);
+  });
   g.fillStyle = '#888';
   g.fillText('scale: ' + span.toFixed(2) + ' m across', 8, c.height - 8);
 }
@@ -95,7 +105,7 @@ function update(s) {
       s.keyframes + ' keyframes | frame ' + s.frame_index + (s.run_ended ? ' | run ended' : '');
   $('frame-label').textContent = s.frame_index >= 0 ? '#' + s.frame_index : '';
   for (const name of ['camera', 'render', 'depth', 'sigma']) refreshImage(name, s.images[name]);
-  drawTrajectory(s.trajectory, s.ground_truth);
+  drawTrajectory(s.trajectory, s.ground_truth, s.objects);
   drawStatus(s.status);
 }
 

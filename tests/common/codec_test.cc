@@ -281,6 +281,9 @@ TEST(Codec, EnumRangesChecked) {
   u.blocks[2].level = 2;  // only two levels
   EXPECT_NE(decodeError<FieldUpdate>(encode(u)).find("blocks[2]: level 2 outside [0, 2)"),
             std::string::npos);
+  u = sampleFieldUpdate();
+  u.chunk_index = u.chunk_count;
+  EXPECT_NE(decodeError<FieldUpdate>(encode(u)).find("chunk 5 of 5 is invalid"), std::string::npos);
   Frame f;
   f.camera.type = static_cast<CameraModel::Type>(4);
   EXPECT_NE(decodeError<Frame>(encode(f)).find("camera: unknown camera model 4"),

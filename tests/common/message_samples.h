@@ -168,7 +168,10 @@ inline FieldUpdate sampleFieldUpdate() {
   u.header = sampleHeader(4000004);
   u.version = 12;
   u.base_version = 9;
-  u.is_snapshot = false;
+  u.is_snapshot = true;
+  u.snapshot_id = 3;
+  u.chunk_index = 1;
+  u.chunk_count = 5;
   u.layout = "density_rgb_f16/v1";
   u.voxel_size = {0.08, 0.02};
   u.block_dim = 8;
@@ -325,6 +328,9 @@ inline void expectFieldUpdateEq(const FieldUpdate& a, const FieldUpdate& b) {
   EXPECT_EQ(a.version, b.version);
   EXPECT_EQ(a.base_version, b.base_version);
   EXPECT_EQ(a.is_snapshot, b.is_snapshot);
+  EXPECT_EQ(a.snapshot_id, b.snapshot_id);
+  EXPECT_EQ(a.chunk_index, b.chunk_index);
+  EXPECT_EQ(a.chunk_count, b.chunk_count);
   EXPECT_EQ(a.layout, b.layout);
   EXPECT_EQ(a.voxel_size, b.voxel_size);
   EXPECT_EQ(a.block_dim, b.block_dim);

@@ -93,6 +93,53 @@ TEST(FieldUpdates, ReplayReproducesTheFieldBitwise) {
   EXPECT_EQ(cv::norm(a.depth, b.depth, cv::NORM_INF), 0);
 }
 
+TEST(FieldUpdates, SnapshotInChunksWhileTrainingGoesOn) {
+  const SyntheticScene scene = tinyRoom();
+  Mapper mapper(smallParams());
+  int64_t published = 0;
+  for (int i = 0; i < 3; ++i) {
+    mapper.addKeyframe(keyframeOf(scene, i * 10, i));
+    mapper.train(2);
+    published = mapper.makeUpdate(published).version;  // what replicas in step have seen
+  }
+  const int total_blocks = static_cast<int>(mapper.field().totalBlocks());
+  SnapshotSender sender = mapper.makeSnapshotSender(7, 10);
+  ASSERT_GT(sender.chunkCount(), 2);
+  EXPECT_EQ(sender.chunkCount(), (total_blocks + 9) / 10);
+  SnapshotAssembler assembler;
+  std::string error;
+  int chunks = 0;
+  while (!sender.done()) {
+    const FieldUpdate chunk = sender.next();
+    EXPECT_TRUE(chunk.is_snapshot);
+    EXPECT_EQ(chunk.snapshot_id, 7);
+    EXPECT_EQ(chunk.chunk_index, chunks);
+    EXPECT_LE(chunk.blocks.size(), 10u);
+    const SnapshotAssembler::Result r = assembler.add(chunk, &error);
+    ++chunks;
+    ASSERT_EQ(r, chunks < sender.chunkCount() ? SnapshotAssembler::Result::kIncomplete
+                                              : SnapshotAssembler::Result::kComplete)
+        << error;
+    mapper.train(1);  // the field changes while the chunks are on their way
+  }
+  EXPECT_EQ(chunks, sender.chunkCount());
+  Field replica = std::move(assembler.field());
+  EXPECT_EQ(replica.version(), sender.version());
+  // The mapper's next update, based at the snapshot's version, completes the replica.
+  const FieldUpdate catch_up = mapper.makeUpdate(std::min(published, sender.version()));
+  ASSERT_EQ(applyFieldUpdate(catch_up, &replica, &error), ApplyResult::kApplied) << error;
+  EXPECT_TRUE(replica.sameContent(mapper.field()));
+
+  // A lost chunk abandons the snapshot; the next one starts over.
+  SnapshotSender again = mapper.makeSnapshotSender(8, 10);
+  SnapshotAssembler lossy;
+  ASSERT_EQ(lossy.add(again.next(), &error), SnapshotAssembler::Result::kIncomplete) << error;
+  again.next();  // lost
+  EXPECT_EQ(lossy.add(again.next(), &error), SnapshotAssembler::Result::kLost);
+  EXPECT_NE(error.find("expected chunk 1"), std::string::npos) << error;
+  EXPECT_FALSE(lossy.inProgress());
+}
+
 TEST(FieldUpdates, StaleGapAndInvalidUpdates) {
   const SyntheticScene scene = tinyRoom();
   Mapper mapper(smallParams());

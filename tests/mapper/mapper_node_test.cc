@@ -7,6 +7,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <set>
 
 #include <gtest/gtest.h>
 
@@ -94,7 +95,9 @@ TEST(MapperNode, FollowsKeyframesPublishesUpdatesAndWritesOutputs) {
     bus.publish(channel::kPose, p);
   }
   Keyframe bad = keyframeOf(scene, 5, 9);
-  bad.camera.fx = -1;  // encodes, but is not a camera
+  // A valid message the mapper cannot use (it needs undistorted keyframes).
+  bad.camera.type = CameraModel::Type::kRadTan;
+  bad.camera.distortion = {0.1, 0.01, 0, 0};
   bus.publish(channel::kKeyframe, bad);
   for (int i = 0; i < 30; ++i) ASSERT_TRUE(node.spinOnce(5));
   EXPECT_EQ(node.mapper().keyframes().size(), 3);  // the malformed one was skipped
@@ -120,9 +123,21 @@ TEST(MapperNode, FollowsKeyframesPublishesUpdatesAndWritesOutputs) {
   bus.publish(channel::kControl, save);
   for (int i = 0; i < 3; ++i) node.spinOnce(5);
   EXPECT_TRUE(std::filesystem::exists(save.argument));
-  int snapshots = 0;
-  for (const FieldUpdate& u : updates) snapshots += u.is_snapshot;
-  EXPECT_EQ(snapshots, 1);
+  // One snapshot, in chunks of at most max_blocks_per_update blocks, one per update period.
+  for (int i = 0; i < 200; ++i) node.spinOnce(5);
+  std::set<int64_t> snapshot_ids;
+  int chunks = 0, last_count = 0;
+  for (const FieldUpdate& u : updates) {
+    if (!u.is_snapshot) continue;
+    snapshot_ids.insert(u.snapshot_id);
+    EXPECT_EQ(u.chunk_index, chunks);
+    EXPECT_LE(static_cast<int>(u.blocks.size()), nodeParams().max_blocks_per_update);
+    ++chunks;
+    last_count = u.chunk_count;
+  }
+  EXPECT_EQ(snapshot_ids.size(), 1u);
+  EXPECT_GE(chunks, 1);
+  EXPECT_EQ(chunks, last_count);
 
   Control stop;
   stop.command = ControlCommand::kStop;

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <functional>
 #include <string>
+#include <tuple>
 #include <utility>
 #include <vector>
 
@@ -446,6 +447,18 @@ Field makeShellField(int levels, int sh_degree) {
   return field;
 }
 
+// makeShellField with every other fine block and some coarse blocks zeroed (never trained):
+// the march composites sub-blocks that read zeros at every level without sampling them.
+Field makeShellFieldWithZeros(int levels, int sh_degree) {
+  Field field = makeShellField(levels, sh_degree);
+  Rng rng;
+  for (int l = 0; l < field.numLevels(); ++l)
+    for (int b = 0; b < field.numBlocks(l); ++b)
+      if (rng.uniform() < (l + 1 == field.numLevels() ? 0.5f : 0.7f))
+        std::fill_n(field.blockData(l, b), Field::kBlockVoxels * field.channels(), 0.f);
+  return field;
+}
+
 void expectSameOutput(const RayOutput& a, const RayOutput& b, const std::string& what) {
   for (int k = 0; k < 3; ++k) EXPECT_EQ(a.color[k], b.color[k]) << what;
   EXPECT_EQ(a.depth, b.depth) << what;
@@ -471,8 +484,9 @@ TEST(VolumeRenderer, MarchEqualsThePerSampleReferenceBitwise) {
   const SE3 poses[] = {SE3(), SE3(SO3::exp(Vec3(0.1, -0.2, 0.05)), Vec3(0.1, 0.05, 1.3)),
                        SE3(SO3::exp(Vec3(0, 1.4, 0)), Vec3(-1.2, 0.1, 1.2))};
   int hits = 0, stops = 0;
-  for (const auto& [levels, sh] : {std::pair{2, 0}, {3, 1}, {1, 0}}) {
-    const Field field = makeShellField(levels, sh);
+  for (const auto& [levels, sh, zeros] :
+       {std::tuple{2, 0, false}, {3, 1, false}, {1, 0, false}, {2, 0, true}, {2, 1, true}}) {
+    const Field field = zeros ? makeShellFieldWithZeros(levels, sh) : makeShellField(levels, sh);
     for (const MarchParams& params : {MarchParams(), preview, unnormalized}) {
       for (const SE3& T : poses) {
         const RenderImages img = renderer.render(field, T, cam, params, 1);

@@ -119,6 +119,48 @@ TEST(FieldReplica, GapInTheMiddleAsksForASnapshotAndKeepsTheField) {
   EXPECT_TRUE(replica.field().sameContent(mapper->field()));
 }
 
+TEST(FieldReplica, ChunkedSnapshotAfterALostChunkAndAStalledRequest) {
+  DemoFieldOptions options;
+  options.train_steps = 0;
+  auto mapper = makeDemoMapper(options);
+  FieldReplica replica;
+  std::vector<std::string> requests;
+  replica.setSnapshotRequest([&](const std::string& why) { requests.push_back(why); });
+  std::string error;
+  mapper->train(2);
+  const FieldUpdate u1 = mapper->makeUpdate(0);
+  mapper->train(2);
+  const FieldUpdate u2 = mapper->makeUpdate(u1.version);
+  replica.retryStalledSnapshot(100.0, 15.0);
+  EXPECT_EQ(replica.apply(u2, &error), ApplyResult::kGap);  // joined late
+  ASSERT_EQ(requests.size(), 1u);
+  // The first snapshot loses a chunk: the replica keeps waiting, its request stands.
+  SnapshotSender lossy = mapper->makeSnapshotSender(1, 20);
+  ASSERT_GT(lossy.chunkCount(), 2);
+  EXPECT_EQ(replica.apply(lossy.next(), &error), ApplyResult::kPartial);
+  lossy.next();
+  EXPECT_EQ(replica.apply(lossy.next(), &error), ApplyResult::kGap);
+  EXPECT_TRUE(replica.waitingForSnapshot());
+  // No snapshot for longer than the stall time: asked again.
+  replica.retryStalledSnapshot(110.0, 15.0);
+  EXPECT_EQ(requests.size(), 1u);
+  replica.retryStalledSnapshot(130.0, 15.0);
+  EXPECT_EQ(requests.size(), 2u);
+  // A complete snapshot, then the update since its version: the mapper's field exactly.
+  SnapshotSender sender = mapper->makeSnapshotSender(2, 20);
+  ApplyResult last = ApplyResult::kPartial;
+  while (!sender.done()) last = replica.apply(sender.next(), &error);
+  EXPECT_EQ(last, ApplyResult::kApplied) << error;
+  EXPECT_FALSE(replica.waitingForSnapshot());
+  mapper->train(2);
+  ASSERT_EQ(replica.apply(mapper->makeUpdate(sender.version()), &error), ApplyResult::kApplied)
+      << error;
+  EXPECT_TRUE(replica.field().sameContent(mapper->field()));
+  // A replica in step ignores the chunks of a snapshot someone else asked for.
+  SnapshotSender other = mapper->makeSnapshotSender(3, 20);
+  EXPECT_EQ(replica.apply(other.next(), &error), ApplyResult::kStale);
+}
+
 TEST(FieldReplica, MalformedUpdateIsRejectedAndEmptyReplicaRendersBackground) {
   FieldReplica replica;
   FieldUpdate bad;
