@@ -54,6 +54,21 @@ struct Frame {
 
 enum class TrackingState : int8_t { kInitializing = 0, kTracking = 1, kLost = 2, kGroundTruth = 3 };
 
+/// "initializing", "tracking", "lost" or "ground_truth".
+inline const char* trackingStateName(TrackingState state) {
+  switch (state) {
+    case TrackingState::kInitializing:
+      return "initializing";
+    case TrackingState::kTracking:
+      return "tracking";
+    case TrackingState::kLost:
+      return "lost";
+    case TrackingState::kGroundTruth:
+      return "ground_truth";
+  }
+  return "unknown";
+}
+
 /// Channels POSE and GROUND_TRUTH.
 struct PoseStamped {
   Header header;

@@ -36,6 +36,7 @@ const char* kUsage = R"(usage: radslam-bench-tracker --dataset KIND:PATH [option
                        DIR/keyframes/<timestamp>.exr (channels depth, sigma; the run-folder layout)
                        and DIR/keyframes/camera.yaml (the keyframe images' pinhole intrinsics)
   --quiet              no per-frame progress
+  --verbose            one line per frame: state, tracked cells, flow, parallax, keyframes
 )";
 
 double cpuSeconds() {
@@ -101,6 +102,7 @@ int run(int argc, char** argv) {
   const std::string json_path = cli.get("json", "");
   const std::string out_dir = cli.get("out", "");
   const bool quiet = cli.getBool("quiet", false);
+  const bool verbose = cli.getBool("verbose", false);
   cli.finish();
   if (spec.empty()) throw std::runtime_error("--dataset is required\n" + cli.usage());
   if (name.empty()) name = sequenceName(spec);
@@ -147,7 +149,15 @@ int run(int argc, char** argv) {
     ++frames;
     if (out.has_pose) poses[out.pose.frame_index] = out.pose;
     keep(out.keyframes);
-    if (!quiet && (frames % 20 == 0)) {
+    if (verbose) {
+      const TrackerStats& s = out.stats;
+      std::fprintf(stderr,
+                   "  frame %d: %s, tracked %.2f, flow %.2f px, parallax %.2f px, %d keyframes, "
+                   "window %d, %d edges, BA cost %.4g, %.1f ms\n",
+                   i, out.has_pose ? trackingStateName(out.pose.state) : "no pose",
+                   s.valid_fraction, s.mean_flow_px, s.mean_parallax_px, s.keyframes,
+                   s.window_size, s.edges, s.ba_cost, s.frame_ms);
+    } else if (!quiet && (frames % 20 == 0)) {
       std::cerr << "  frame " << i << ": " << out.stats.keyframes << " keyframes, flow "
                 << out.stats.flow_ms << " ms, BA " << out.stats.ba_ms << " ms, frame "
                 << out.stats.frame_ms << " ms\n";

@@ -52,6 +52,12 @@ bool stepIsNegligible(const std::vector<Vec6>& dxi, const std::vector<Eigen::Vec
 
 }  // namespace
 
+RobustKernel parseRobustKernel(const std::string& name) {
+  if (name == "huber") return RobustKernel::kHuber;
+  if (name == "cauchy") return RobustKernel::kCauchy;
+  throw std::invalid_argument("robust kernel '" + name + "' is unknown (huber, cauchy)");
+}
+
 void validateDenseBaProblem(const DenseBaProblem& problem) {
   const CameraModel& cam = problem.camera;
   if (cam.type != CameraModel::Type::kPinhole) {

@@ -95,6 +95,12 @@ enum class DenseBaGauge {
                       //   (monocular; keyframe 1 keeps 5 dof: rotation and baseline direction)
 };
 
+/// Robust kernels of the reprojection residuals (tracker/dense_ba_kernel.h).
+enum class RobustKernel { kHuber, kCauchy };
+
+/// "huber" or "cauchy"; throws std::invalid_argument otherwise.
+RobustKernel parseRobustKernel(const std::string& name);
+
 struct DenseBaOptions {
   /// Default kFirstTwoPoses (monocular, the simplest complete gauge). Use kFirstPose with RGB-D
   /// priors or stereo edges, kFirstPoseAndScale to let the second keyframe rotate and move on
@@ -102,11 +108,12 @@ struct DenseBaOptions {
   DenseBaGauge gauge = DenseBaGauge::kFirstTwoPoses;
   /// Maximum linear solves (accepted + rejected Levenberg-Marquardt steps) per optimize().
   int max_iterations = 10;
-  /// Huber threshold on the whitened residual norm s (<= 0: no robust kernel). Default
-  /// sqrt(chi2_2(0.95)) = 2.4477: with correct weights 95% of inlier pixels keep full weight
-  /// (a 2-d whitened residual has s^2 ~ chi2(2)), so the kernel costs little efficiency and
-  /// only gross flow errors are down-weighted.
-  double huber_threshold = 2.4477;
+  /// Robust kernel on the whitened residual norm s (dense_ba_kernel.h) and its scale (<= 0:
+  /// plain least squares). Scale sqrt(chi2_2(0.95)) = 2.4477: with correct weights 95% of
+  /// inlier pixels keep (nearly) full weight (a 2-d whitened residual has s^2 ~ chi2(2)), so
+  /// the kernel costs little efficiency and only gross flow errors are down-weighted.
+  RobustKernel robust_kernel = RobustKernel::kHuber;
+  double robust_scale = 2.4477;
   /// Points with z_j / z_i below this are dropped (DROID-SLAM's MIN_DEPTH = 0.2 on the same
   /// homogeneous z).
   double min_depth_ratio = 0.2;

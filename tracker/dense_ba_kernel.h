@@ -6,6 +6,8 @@
 
 #include <Eigen/Core>
 
+#include "tracker/dense_ba.h"
+
 namespace radslam {
 namespace dense_ba {
 
@@ -86,6 +88,28 @@ inline S huber(S s2, S k, S* irls_weight) {
   const S s = std::sqrt(s2);
   *irls_weight = k / s;
   return S(2) * k * s - k * k;
+}
+
+/// Cauchy kernel with scale k (k <= 0: plain least squares): rho = k^2 log(1 + s^2 / k^2),
+/// IRLS weight rho'(s^2) = 1 / (1 + s^2 / k^2). Redescending: a gross error's pull falls as
+/// 1/s instead of staying at Huber's k, so a cluster of consistent wrong flows (a textureless
+/// stretch, a repeated pattern) cannot drag the estimate the way it does under Huber.
+template <typename S>
+inline S cauchy(S s2, S k, S* irls_weight) {
+  if (k <= S(0)) {
+    *irls_weight = S(1);
+    return s2;
+  }
+  const S c2 = k * k;
+  *irls_weight = S(1) / (S(1) + s2 / c2);
+  return c2 * std::log1p(s2 / c2);
+}
+
+/// The kernel's cost at squared whitened norm s2 with scale k, and its IRLS weight.
+template <typename S>
+inline S robustCost(RobustKernel kernel, S s2, S k, S* irls_weight) {
+  return kernel == RobustKernel::kCauchy ? cauchy(s2, k, irls_weight)
+                                         : huber(s2, k, irls_weight);
 }
 
 }  // namespace dense_ba

@@ -197,13 +197,14 @@ double DenseBundleAdjuster::System::keyframePass(int kf, const std::vector<SE3>&
 template <bool kLinearize>
 void DenseBundleAdjuster::System::rowPass(const Edge& e, EdgeContext* x, int v, Linearization* lin,
                                           double* cost, double* err, int* n) {
-  // The arithmetic of dense_ba::reproject and dense_ba::huber on blocks of kBlock pixels of one
+  // The arithmetic of dense_ba::reproject and dense_ba::robustCost on blocks of kBlock pixels of one
   // grid row (fixed-size arrays: unrolled and vectorised); invalid pixels get zero weight, the
   // branches stay in two short scalar loops.
   using Block = Eigen::Array<double, kBlock, 1>;
   using CMap = Eigen::Map<const Block>;
   const double fx = cam_.fx, fy = cam_.fy, cx = cam_.cx, cy = cam_.cy;
-  const double k = options_.huber_threshold;
+  const double k = options_.robust_scale;
+  const RobustKernel kernel = options_.robust_kernel;
   const double min_ratio = options_.min_depth_ratio;
   const Mat3& R = x->R;
   const Vec3& t = x->t;
@@ -234,7 +235,7 @@ void DenseBundleAdjuster::System::rowPass(const Edge& e, EdgeContext* x, int v, 
         irls(q) = 0;
         continue;
       }
-      *cost += dense_ba::huber(s2(q), k, &irls(q));
+      *cost += dense_ba::robustCost(kernel, s2(q), k, &irls(q));
       *err += std::sqrt(ru(q) * ru(q) + rv(q) * rv(q));
       ++*n;
     }

@@ -23,6 +23,19 @@ int presetOf(const std::string& name) {
   throw std::invalid_argument("flow preset '" + name + "' is unknown (ultrafast, fast, medium)");
 }
 
+// x + flow(x) per pixel (CV_32FC2), the map cv::remap takes.
+cv::Mat absoluteMap(const cv::Mat& flow) {
+  cv::Mat map(flow.size(), CV_32FC2);
+  for (int y = 0; y < flow.rows; ++y) {
+    const cv::Vec2f* f = flow.ptr<cv::Vec2f>(y);
+    cv::Vec2f* m = map.ptr<cv::Vec2f>(y);
+    for (int x = 0; x < flow.cols; ++x) {
+      m[x] = cv::Vec2f(static_cast<float>(x) + f[x][0], static_cast<float>(y) + f[x][1]);
+    }
+  }
+  return map;
+}
+
 }  // namespace
 
 DenseFlow::DenseFlow(const FlowOptions& options) : options_(options) {
@@ -44,18 +57,37 @@ DenseFlow::DenseFlow(const FlowOptions& options) : options_(options) {
   dis_->setUseSpatialPropagation(options.spatial_propagation);
 }
 
-cv::Mat DenseFlow::compute(const cv::Mat& grey_a, const cv::Mat& grey_b, const cv::Mat& init) {
+cv::Mat DenseFlow::compute(const cv::Mat& grey_a, const cv::Mat& grey_b, const cv::Mat& init,
+                           WarmStart warm_start) {
   CV_Assert(grey_a.type() == CV_8UC1 && grey_b.type() == CV_8UC1 && grey_a.size() == grey_b.size());
-  // DIS starts from the given flow when it has a's size and type, from zero otherwise.
-  cv::Mat flow;
-  if (!init.empty()) {
-    CV_Assert(init.type() == CV_32FC2 && init.size() == grey_a.size());
-    flow = init.clone();
-  }
   const cv::Mat a = grey_a.isContinuous() ? grey_a : grey_a.clone();
   const cv::Mat b = grey_b.isContinuous() ? grey_b : grey_b.clone();
-  dis_->calc(a, b, flow);
-  return flow;
+  if (init.empty()) {
+    cv::Mat flow;
+    dis_->calc(a, b, flow);
+    return flow;
+  }
+  CV_Assert(init.type() == CV_32FC2 && init.size() == grey_a.size());
+  if (warm_start == WarmStart::kCoarse) {
+    cv::Mat flow = init.clone();
+    dis_->calc(a, b, flow);
+    return flow;
+  }
+  // b warped by the (smoothed) prediction, the residual flow from zero, composed with the
+  // prediction: a(x) ~ b_w(x + r(x)) = b(x + r(x) + init(x + r(x))).
+  cv::Mat smooth_init = init;
+  if (options_.warp_smoothing_px > 0) {
+    cv::GaussianBlur(init, smooth_init, cv::Size(0, 0), options_.warp_smoothing_px);
+  }
+  cv::Mat warped;
+  cv::remap(b, warped, absoluteMap(smooth_init), cv::noArray(), cv::INTER_LINEAR,
+            cv::BORDER_REPLICATE);
+  cv::Mat residual;
+  dis_->calc(a, warped, residual);
+  cv::Mat init_at_target;
+  cv::remap(smooth_init, init_at_target, absoluteMap(residual), cv::noArray(), cv::INTER_LINEAR,
+            cv::BORDER_REPLICATE);
+  return residual + init_at_target;
 }
 
 cv::Mat predictedFlow(const cv::Mat& grid_targets, const GridGeometry& geometry) {

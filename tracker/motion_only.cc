@@ -87,7 +87,8 @@ double MotionOnlyAligner::linearize(const CameraModel& camera,
         }
         const double ru = tu - pu, rv = tv - pv;
         double irls;
-        cost += dense_ba::huber(wu * ru * ru + wv * rv * rv, options_.huber_threshold, &irls);
+        cost += dense_ba::robustCost(options_.robust_kernel, wu * ru * ru + wv * rv * rv,
+                                     options_.robust_scale, &irls);
         err += std::sqrt(ru * ru + rv * rv);
         ++n;
         if (jac) {

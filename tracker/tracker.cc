@@ -95,12 +95,12 @@ struct Tracker::Impl {
 
   // Keyframe pairs, BA and output.
   /// Flow a -> b and b -> a warm-started from the current estimate, as correspondences.
-  std::pair<Correspondences, Correspondences> measureBothWays(int a, int b);
-  void measurePair(int a, int b);
+  std::pair<Correspondences, Correspondences> measureBothWays(int a, int b, WarmStart warm_start);
+  void measurePair(int a, int b, WarmStart warm_start);
   /// Loop edges between window keyframe id and anchor a; false (no edge) when too few pixels
   /// are tracked.
   bool measureLoop(int id, int a);
-  void measureStereo(int id);
+  void measureStereo(int id, WarmStart warm_start);
   void setPriors();
   bool runBa(int iterations);
   void updateMarginals();
@@ -116,6 +116,7 @@ struct Tracker::Impl {
   TrackerMode mode;
   FlowOptions flow_options;
   RefineOptions refine_options;
+  WarmStart frame_warm_start = WarmStart::kCoarse;
   KeyframePolicy keyframe_policy;
   DepthUpsamplingOptions upsampling;
   ResendTolerance tolerance;
@@ -165,6 +166,7 @@ Tracker::Impl::Impl(const TrackerParams& params, TrackerMode m)
         f.patch_size = params.flow_patch_size;
         f.patch_stride = params.flow_patch_stride;
         f.spatial_propagation = params.flow_spatial_propagation;
+        f.warp_smoothing_px = params.flow_warp_smoothing_px;
         f.sigma0_px = params.conf_sigma0_px;
         f.fb_gain = params.conf_fb_gain;
         f.fb_max_px = params.conf_fb_max_px;
@@ -180,7 +182,8 @@ Tracker::Impl::Impl(const TrackerParams& params, TrackerMode m)
       aligner([&] {
         MotionOnlyOptions m;
         m.max_iterations = params.motion_iterations;
-        m.huber_threshold = params.huber_threshold;
+        m.robust_kernel = parseRobustKernel(params.robust_kernel);
+        m.robust_scale = params.robust_scale;
         m.min_depth_ratio = params.min_depth_ratio;
         return m;
       }()) {
@@ -191,12 +194,14 @@ Tracker::Impl::Impl(const TrackerParams& params, TrackerMode m)
   refine_options.iterations = p.refine_iterations;
   refine_options.max_shift_px = p.refine_max_shift_px;
   refine_options.brightness_offset = p.refine_brightness_offset;
+  frame_warm_start = p.frame_flow_warp ? WarmStart::kWarp : WarmStart::kCoarse;
   tolerance.rotation_rad = p.resend_rotation_deg * M_PI / 180.0;
   tolerance.translation_rel = p.resend_translation_rel;
   tolerance.inv_depth_rel = p.resend_inv_depth_rel;
   tolerance.min_keyframes_between = p.resend_min_keyframes;
   ba_options.max_iterations = p.ba_iterations;
-  ba_options.huber_threshold = p.huber_threshold;
+  ba_options.robust_kernel = parseRobustKernel(p.robust_kernel);
+  ba_options.robust_scale = p.robust_scale;
   ba_options.min_depth_ratio = p.min_depth_ratio;
   ba.setOptions(ba_options);
 }
@@ -365,7 +370,7 @@ void Tracker::Impl::track(const Frame& frame, const PreparedImage& image, Tracke
   const auto t_flow = Clock::now();
   const cv::Mat predicted = reprojectKeyframe(g.grid, ref.ba, T_pred, p.min_depth_ratio);
   const cv::Mat init = predictedFlow(predicted, g);
-  const cv::Mat forward = flow.compute(ref.grey, image.grey, init);
+  const cv::Mat forward = flow.compute(ref.grey, image.grey, init, frame_warm_start);
   cv::Mat backward;
   if (p.frame_backward_flow) {
     // The frame has no depth to predict the backward flow: the negated forward prediction is
@@ -538,7 +543,7 @@ void Tracker::Impl::makeKeyframe(const Frame& frame, const PreparedImage& image,
 
   if (mode == TrackerMode::kStereo) {
     // Metric inverse depth from the disparity where it is measured.
-    measureStereo(id);
+    measureStereo(id, WarmStart::kCoarse);
     KeyframeData& k = graph.keyframe(id);
     const GraphEdge* stereo = nullptr;
     for (const GraphEdge& e : graph.edges()) {
@@ -565,12 +570,11 @@ void Tracker::Impl::makeKeyframe(const Frame& frame, const PreparedImage& image,
   }
   for (int round = 0; round < p.flow_ba_rounds; ++round) {
     const auto t_flow = Clock::now();
+    // The first round's flows start coarse from the motion-only pose (robust to its errors);
+    // later rounds warp by BA's prediction, which measures the near ground and other fast
+    // varying flow without DIS's shrinking bias.
+    const WarmStart warm_start = round == 0 ? WarmStart::kCoarse : WarmStart::kWarp;
     for (int m : partners) {
-      // Later rounds re-measure only the pair with the previous keyframe, whose first measure
-      // came from per-frame tracking (warm-started by a motion model, not by BA): on the
-      // sequences measured, re-measuring the other pairs changed the result by less than the
-      // run-to-run spread and cost a third of the keyframe time.
-      if (round > 0 && m != partners.front()) continue;
       if (round == 0 && tracked && !tracked->backward.empty() && m == partners.front()) {
         // The frame's own flows against its reference keyframe are this pair's first measure.
         const KeyframeData& k = graph.keyframe(id);
@@ -582,10 +586,10 @@ void Tracker::Impl::makeKeyframe(const Frame& frame, const PreparedImage& image,
                                 tracked->correspondences.weight, std::nullopt});
         graph.setEdge(GraphEdge{id, m, back.target, back.weight, std::nullopt});
       } else {
-        measurePair(id, m);
+        measurePair(id, m, warm_start);
       }
     }
-    if (mode == TrackerMode::kStereo && round > 0) measureStereo(id);
+    if (mode == TrackerMode::kStereo && round > 0) measureStereo(id, warm_start);
     stats.flow_ms += msSince(t_flow);
     if (can_ba) runBa(p.ba_iterations);
   }
@@ -627,7 +631,8 @@ Correspondences Tracker::Impl::correspond(const cv::Mat& grey_a, const cv::Mat& 
   return c;
 }
 
-std::pair<Correspondences, Correspondences> Tracker::Impl::measureBothWays(int a, int b) {
+std::pair<Correspondences, Correspondences> Tracker::Impl::measureBothWays(int a, int b,
+                                                                          WarmStart warm_start) {
   const GridGeometry& g = preparer->geometry();
   const KeyframeData& ka = graph.keyframe(a);
   const KeyframeData& kb = graph.keyframe(b);
@@ -635,8 +640,8 @@ std::pair<Correspondences, Correspondences> Tracker::Impl::measureBothWays(int a
       predictedFlow(reprojectKeyframe(g.grid, ka.ba, kb.ba.T_world_cam, p.min_depth_ratio), g);
   const cv::Mat init_ba =
       predictedFlow(reprojectKeyframe(g.grid, kb.ba, ka.ba.T_world_cam, p.min_depth_ratio), g);
-  const cv::Mat f_ab = flow.compute(ka.grey, kb.grey, init_ab);
-  const cv::Mat f_ba = flow.compute(kb.grey, ka.grey, init_ba);
+  const cv::Mat f_ab = flow.compute(ka.grey, kb.grey, init_ab, warm_start);
+  const cv::Mat f_ba = flow.compute(kb.grey, ka.grey, init_ba, warm_start);
   // A keyframe outside the window keeps only its grey image and structure tensor.
   auto gradients = [](const KeyframeData& k) {
     return k.gradients.empty() ? imageGradients(k.grey) : k.gradients;
@@ -647,14 +652,14 @@ std::pair<Correspondences, Correspondences> Tracker::Impl::measureBothWays(int a
                      ka.moving_grid)};
 }
 
-void Tracker::Impl::measurePair(int a, int b) {
-  const auto [c_ab, c_ba] = measureBothWays(a, b);
+void Tracker::Impl::measurePair(int a, int b, WarmStart warm_start) {
+  const auto [c_ab, c_ba] = measureBothWays(a, b, warm_start);
   graph.setEdge(GraphEdge{a, b, c_ab.target, c_ab.weight, std::nullopt});
   graph.setEdge(GraphEdge{b, a, c_ba.target, c_ba.weight, std::nullopt});
 }
 
 bool Tracker::Impl::measureLoop(int id, int a) {
-  const auto [c_ak, c_ka] = measureBothWays(a, id);
+  const auto [c_ak, c_ka] = measureBothWays(a, id, WarmStart::kCoarse);
   if (c_ak.valid_fraction < p.loop_min_valid || c_ka.valid_fraction < p.loop_min_valid) {
     return false;
   }
@@ -663,7 +668,7 @@ bool Tracker::Impl::measureLoop(int id, int a) {
   return true;
 }
 
-void Tracker::Impl::measureStereo(int id) {
+void Tracker::Impl::measureStereo(int id, WarmStart warm_start) {
   const GridGeometry& g = preparer->geometry();
   const KeyframeData& k = graph.keyframe(id);
   if (k.right_grey.empty() || !(baseline_m > 0)) return;
@@ -674,9 +679,9 @@ void Tracker::Impl::measureStereo(int id) {
     init = predictedFlow(
         reprojectKeyframe(g.grid, k.ba, k.ba.T_world_cam * T_left_right, p.min_depth_ratio), g);
   }
-  const cv::Mat f_lr = flow.compute(k.grey, k.right_grey, init);
+  const cv::Mat f_lr = flow.compute(k.grey, k.right_grey, init, warm_start);
   const cv::Mat f_rl =
-      flow.compute(k.right_grey, k.grey, init.empty() ? cv::Mat() : cv::Mat(-init));
+      flow.compute(k.right_grey, k.grey, init.empty() ? cv::Mat() : cv::Mat(-init), warm_start);
   // The right image's objects are where the left one's are, give or take the disparity.
   const Correspondences c = correspond(k.grey, k.gradients, k.structure, k.right_grey, f_lr, f_rl,
                                        k.moving_grid, k.moving_grid);
@@ -688,11 +693,14 @@ void Tracker::Impl::setPriors() {
     KeyframeData& k = graph.keyframe(id);
     // A weak prior keeps pixels without parallax determined; in RGB-D the sensor prior replaces
     // it where the sensor measured. Monocular "fixed": towards init_inv_depth, which also holds
-    // the map's scale (no data constrain it); otherwise towards the keyframe's median.
+    // the map's scale (no data constrain it); otherwise towards the keyframe's median. With
+    // metric depth it is much weaker: pulling far points towards the median depth biases the
+    // scale the stereo edges set.
     const double median = mode == TrackerMode::kMono && p.mono_prior_mean == "fixed"
                               ? p.init_inv_depth
                               : medianPositive(k.ba.inv_depth, p.init_inv_depth);
-    const double weak_sigma = p.mono_prior_rel_sigma * median;
+    const double weak_sigma =
+        (mode == TrackerMode::kMono ? p.mono_prior_rel_sigma : p.metric_prior_rel_sigma) * median;
     k.ba.prior_inv_depth = cv::Mat(k.ba.inv_depth.size(), CV_32FC1, cv::Scalar(median));
     k.ba.prior_inv_depth_var =
         cv::Mat(k.ba.inv_depth.size(), CV_32FC1, cv::Scalar(weak_sigma * weak_sigma));

@@ -82,7 +82,9 @@ void validateTrackerParams(const TrackerParams& p) {
   check(p.loop_max_kept_images >= 0, "loop_max_kept_images must be >= 0");
   check(p.ba_iterations >= 1 && p.final_ba_iterations >= 0,
         "ba_iterations >= 1, final_ba_iterations >= 0");
-  check(p.huber_threshold >= 0, "huber_threshold must be >= 0 (0 = none)");
+  check(p.robust_kernel == "huber" || p.robust_kernel == "cauchy",
+        "robust_kernel must be huber or cauchy");
+  check(p.robust_scale >= 0, "robust_scale must be >= 0 (0 = none)");
   check(p.min_depth_ratio > 0 && p.min_depth_ratio < 1, "min_depth_ratio in (0, 1)");
   check(p.mono_gauge == "first_pose" || p.mono_gauge == "first_pose_and_scale" ||
             p.mono_gauge == "first_two_poses",
@@ -92,6 +94,7 @@ void validateTrackerParams(const TrackerParams& p) {
   check(p.init_inv_depth > 0, "init_inv_depth must be > 0");
   check(p.mono_init_flow_px > 0, "mono_init_flow_px must be > 0");
   check(p.mono_prior_rel_sigma > 0, "mono_prior_rel_sigma must be > 0");
+  check(p.metric_prior_rel_sigma > 0, "metric_prior_rel_sigma must be > 0");
   check(p.depth_sigma_a > 0 && p.depth_sigma_b >= 0, "depth_sigma_a > 0, depth_sigma_b >= 0");
   check(p.depth_min_m > 0 && p.depth_max_m > p.depth_min_m, "0 < depth_min_m < depth_max_m");
   check(p.depth_min_cell_fraction > 0 && p.depth_min_cell_fraction <= 1,
@@ -129,6 +132,8 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("flow_patch_size", &p.flow_patch_size);
   r.get("flow_patch_stride", &p.flow_patch_stride);
   r.get("flow_spatial_propagation", &p.flow_spatial_propagation);
+  r.get("frame_flow_warp", &p.frame_flow_warp);
+  r.get("flow_warp_smoothing_px", &p.flow_warp_smoothing_px);
   r.get("frame_backward_flow", &p.frame_backward_flow);
   r.get("conf_sigma0_px", &p.conf_sigma0_px);
   r.get("conf_fb_gain", &p.conf_fb_gain);
@@ -154,13 +159,15 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("keep_departed_edges", &p.keep_departed_edges);
   r.get("ba_iterations", &p.ba_iterations);
   r.get("final_ba_iterations", &p.final_ba_iterations);
-  r.get("huber_threshold", &p.huber_threshold);
+  r.get("robust_kernel", &p.robust_kernel);
+  r.get("robust_scale", &p.robust_scale);
   r.get("min_depth_ratio", &p.min_depth_ratio);
   r.get("mono_gauge", &p.mono_gauge);
   r.get("mono_prior_mean", &p.mono_prior_mean);
   r.get("init_inv_depth", &p.init_inv_depth);
   r.get("mono_init_flow_px", &p.mono_init_flow_px);
   r.get("mono_prior_rel_sigma", &p.mono_prior_rel_sigma);
+  r.get("metric_prior_rel_sigma", &p.metric_prior_rel_sigma);
   r.get("depth_sigma_a", &p.depth_sigma_a);
   r.get("depth_sigma_b", &p.depth_sigma_b);
   r.get("depth_sigma_z0", &p.depth_sigma_z0);

@@ -52,7 +52,7 @@ void runTrial(std::mt19937* rng, DenseBaGauge gauge, double sigma, double prior_
 
   DenseBaOptions opt;
   opt.gauge = gauge;
-  opt.huber_threshold = 0;  // exact Gaussian model
+  opt.robust_scale = 0;  // exact Gaussian model
   opt.max_iterations = 30;
   DenseBundleAdjuster ba(opt);
   const DenseBaSummary sum = ba.optimize(&prob);
@@ -120,7 +120,7 @@ TEST(DenseBaCalibration, OverconfidentWeightsAreDetected) {
     DenseBaProblem prob = test::makeProblem(s, 0.5, &rng);
     for (DenseBaEdge& e : prob.edges) e.weight *= 16.0;
     DenseBaOptions opt;
-    opt.huber_threshold = 0;
+    opt.robust_scale = 0;
     opt.max_iterations = 30;
     DenseBundleAdjuster ba(opt);
     ASSERT_TRUE(ba.optimize(&prob).ok);

@@ -93,7 +93,7 @@ FullSystem buildFullSystem(const DenseBaProblem& prob, const DenseBaOptions& opt
         }
         const double s2 = wu * r(0) * r(0) + wv * r(1) * r(1);
         double irls;
-        dense_ba::huber(s2, opt.huber_threshold, &irls);
+        dense_ba::huber(s2, opt.robust_scale, &irls);
         const Eigen::Matrix2d W = Eigen::Vector2d(irls * wu, irls * wv).asDiagonal();
         Eigen::MatrixXd J = Eigen::MatrixXd::Zero(2, total);
         const int p = v * cam.width + u;

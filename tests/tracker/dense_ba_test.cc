@@ -103,27 +103,39 @@ TEST(DenseBaKernel, LeftPerturbationJacobianMatchesCentralDifferences) {
   }
 }
 
-TEST(DenseBaKernel, HuberWeightIsTheDerivativeOfTheCost) {
+TEST(DenseBaKernel, RobustWeightIsTheDerivativeOfTheCost) {
   const double k = 2.4477;
-  for (double s2 : {0.1, 3.0, 5.99, 6.1, 20.0, 400.0}) {
-    double w, wp, wm;
-    dense_ba::huber(s2, k, &w);
-    const double h = 1e-6 * s2;
-    const double num =
-        (dense_ba::huber(s2 + h, k, &wp) - dense_ba::huber(s2 - h, k, &wm)) / (2 * h);
-    EXPECT_NEAR(w, num, 1e-6) << s2;
+  for (const RobustKernel kernel : {RobustKernel::kHuber, RobustKernel::kCauchy}) {
+    for (double s2 : {0.1, 3.0, 5.99, 6.1, 20.0, 400.0}) {
+      double w, wp, wm;
+      dense_ba::robustCost(kernel, s2, k, &w);
+      const double h = 1e-6 * s2;
+      const double num = (dense_ba::robustCost(kernel, s2 + h, k, &wp) -
+                          dense_ba::robustCost(kernel, s2 - h, k, &wm)) /
+                         (2 * h);
+      EXPECT_NEAR(w, num, 1e-6) << s2;
+    }
+    double w;
+    // k <= 0: least squares.
+    EXPECT_DOUBLE_EQ(dense_ba::robustCost(kernel, 30.0, 0.0, &w), 30.0);
+    EXPECT_DOUBLE_EQ(w, 1.0);
   }
-  double w;
-  EXPECT_DOUBLE_EQ(dense_ba::huber(30.0, 0.0, &w), 30.0);  // k <= 0: least squares
-  EXPECT_DOUBLE_EQ(w, 1.0);
+  // Cauchy redescends: the pull sqrt(s2) * w of a gross error falls, Huber's stays at k.
+  double w_near, w_far;
+  dense_ba::cauchy(10.0, k, &w_near);
+  dense_ba::cauchy(1000.0, k, &w_far);
+  EXPECT_LT(std::sqrt(1000.0) * w_far, std::sqrt(10.0) * w_near);
 }
 
-TEST(DenseBa, GradientMatchesCentralDifferencesOfTheRobustCost) {
+class DenseBaKernels : public ::testing::TestWithParam<RobustKernel> {};
+
+TEST_P(DenseBaKernels, GradientMatchesCentralDifferencesOfTheRobustCost) {
   std::mt19937 rng(2);
   const DenseBaProblem prob = richProblem(&rng);
   DenseBaOptions opt;
   opt.gauge = DenseBaGauge::kFlaggedOnly;
-  opt.huber_threshold = 1.5;  // many residuals in the robust regime
+  opt.robust_kernel = GetParam();
+  opt.robust_scale = 1.5;  // many residuals in the robust regime
   DenseBundleAdjuster ba(opt);
   DenseBaStep step;
   // The step itself may be singular (no gauge); only the right-hand sides matter here.
@@ -160,6 +172,9 @@ TEST(DenseBa, GradientMatchesCentralDifferencesOfTheRobustCost) {
   }
   EXPECT_EQ(checked, 144);
 }
+
+INSTANTIATE_TEST_SUITE_P(HuberAndCauchy, DenseBaKernels,
+                         ::testing::Values(RobustKernel::kHuber, RobustKernel::kCauchy));
 
 TEST(DenseBa, NoiseFreeMonocularConvergesToGroundTruth) {
   std::mt19937 rng(6);
@@ -283,7 +298,7 @@ TEST(DenseBa, HuberKernelResistsOutliers) {
   for (int robust = 0; robust < 2; ++robust) {
     DenseBaProblem p = prob;
     DenseBaOptions opt;
-    opt.huber_threshold = robust ? 2.4477 : 0.0;
+    opt.robust_scale = robust ? 2.4477 : 0.0;
     opt.max_iterations = 40;
     DenseBundleAdjuster ba(opt);
     ASSERT_TRUE(ba.optimize(&p).ok);

@@ -68,7 +68,7 @@ TEST(MotionOnly, HessianIsTheCostCurvatureAtAZeroResidualPose) {
   std::mt19937 rng(2);
   const AlignmentCase s = makeCase(&rng, 0.0, 2, 16, 12);
   MotionOnlyOptions opt;
-  opt.huber_threshold = 0;
+  opt.robust_scale = 0;
   MotionOnlyAligner aligner(opt);
   Mat6 H;
   Vec6 g;
@@ -110,7 +110,7 @@ TEST(MotionOnly, CovarianceIsCalibrated) {
   // (6-dof chi-square) falls below chi2_6(0.954) = 12.85 for about 95.4% of the trials.
   std::mt19937 rng(4);
   MotionOnlyOptions opt;
-  opt.huber_threshold = 0;
+  opt.robust_scale = 0;
   opt.max_iterations = 20;
   const MotionOnlyAligner aligner(opt);
   int below = 0, trials = 300;
@@ -141,7 +141,7 @@ TEST(MotionOnly, HuberKernelResistsOutliers) {
   double err[2];
   for (int robust = 0; robust < 2; ++robust) {
     MotionOnlyOptions opt;
-    opt.huber_threshold = robust ? 2.4477 : 0.0;
+    opt.robust_scale = robust ? 2.4477 : 0.0;
     opt.max_iterations = 30;
     const MotionOnlyResult r =
         MotionOnlyAligner(opt).align(s.scene.camera, s.keyframes, s.edges, s.T_world_frame);

@@ -284,7 +284,7 @@ TEST(TrackerParams, LoadedFromYamlWithUnknownKeysRejected) {
   EXPECT_DOUBLE_EQ(p.keyframe_flow_px, 3.5);
   EXPECT_EQ(p.max_edge_partners, 2);
   EXPECT_NE(dump.find("window_size: 6"), std::string::npos);
-  EXPECT_NE(dump.find("huber_threshold"), std::string::npos);  // every field is listed
+  EXPECT_NE(dump.find("robust_scale"), std::string::npos);  // every field is listed
 
   const std::string bad = dir + "/tracker_params_bad.yaml";
   {
