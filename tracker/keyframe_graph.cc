@@ -23,6 +23,22 @@ double medianPositive(const cv::Mat& image, double fallback) {
   return values[mid];
 }
 
+namespace {
+
+void releaseImages(KeyframeData* kf) {
+  kf->color.release();
+  kf->moving.release();
+  kf->grey.release();
+  kf->structure.release();
+  kf->sensor_inv_depth.release();
+  kf->sensor_inv_depth_var.release();
+  kf->stereo_target.release();
+  kf->stereo_weight.release();
+  kf->sent_inv_depth.release();
+}
+
+}  // namespace
+
 KeyframeGraph::KeyframeGraph(int window_size, int max_kept_images, bool departed_edges_as_anchors)
     : window_size_(window_size),
       max_kept_images_(max_kept_images),
@@ -64,29 +80,19 @@ std::vector<int> KeyframeGraph::slideWindow() {
     kf.in_window = false;
     // Pose, covariance and inverse depth stay; as an anchor of loop edges the keyframe is
     // fixed and its depths are held by its last estimate and marginal variance.
-    if (!kf.inv_depth_var.empty()) {
-      kf.ba.prior_inv_depth = kf.ba.inv_depth.clone();
-      kf.ba.prior_inv_depth_var = kf.inv_depth_var.clone();
-    }
-    kf.ba.fixed_pose = true;
-    // Of the images only the grey one (and its structure tensor) stays, for loop edges.
-    kf.color.release();
-    kf.moving.release();
+    anchor(id);
     kf.right_grey.release();
     kf.gradients.release();
+    // The last max_kept_images keep what loop edges and global BA need (grey image, structure
+    // tensor, sensor depth, stereo correspondences) and what a re-send needs (colour, mask).
     if (max_kept_images_ > 0) {
       kept_images_.push_back(id);
     } else {
-      kf.grey.release();
-      kf.structure.release();
+      releaseImages(&kf);
     }
-    kf.sensor_inv_depth.release();
-    kf.sensor_inv_depth_var.release();
-    kf.sent_inv_depth.release();
   }
   while (static_cast<int>(kept_images_.size()) > max_kept_images_) {
-    keyframes_[kept_images_.front()].grey.release();
-    keyframes_[kept_images_.front()].structure.release();
+    releaseImages(&keyframes_[kept_images_.front()]);
     kept_images_.erase(kept_images_.begin());
   }
   if (!left.empty()) {
@@ -175,6 +181,15 @@ int KeyframeGraph::loopPartner(int id, const CameraModel& grid, double min_overl
   return -1;
 }
 
+void KeyframeGraph::anchor(int id) {
+  KeyframeData& kf = keyframes_.at(id);
+  if (!kf.inv_depth_var.empty()) {
+    kf.ba.prior_inv_depth = kf.ba.inv_depth.clone();
+    kf.ba.prior_inv_depth_var = kf.inv_depth_var.clone();
+  }
+  kf.ba.fixed_pose = true;
+}
+
 DenseBaProblem KeyframeGraph::buildProblem(const CameraModel& grid, std::vector<int>* ids) const {
   DenseBaProblem problem;
   problem.camera = grid;
@@ -196,6 +211,67 @@ DenseBaProblem KeyframeGraph::buildProblem(const CameraModel& grid, std::vector<
     DenseBaEdge be;
     be.i = i;
     be.j = e.T_i_other ? i : j;
+    be.target = e.target;
+    be.weight = e.weight;
+    be.T_i_other = e.T_i_other;
+    problem.edges.push_back(std::move(be));
+  }
+  return problem;
+}
+
+std::vector<std::pair<int, int>> KeyframeGraph::globalPairs(const CameraModel& grid,
+                                                            double min_overlap, int max_partners,
+                                                            double min_depth_ratio) const {
+  std::vector<int> with_image;
+  for (const KeyframeData& k : keyframes_) {
+    if (!k.grey.empty()) with_image.push_back(k.id);
+  }
+  std::vector<std::pair<int, int>> pairs;
+  auto add = [&](int a, int b) {
+    const std::pair<int, int> p(std::min(a, b), std::max(a, b));
+    if (std::find(pairs.begin(), pairs.end(), p) == pairs.end()) pairs.push_back(p);
+  };
+  for (size_t n = 0; n < with_image.size(); ++n) {
+    const int a = with_image[n];
+    if (n + 1 < with_image.size()) add(a, with_image[n + 1]);
+    std::vector<std::pair<double, int>> candidates;
+    for (int b : with_image) {
+      if (std::abs(b - a) <= 1) continue;
+      const double o =
+          std::min(overlap(a, b, grid, min_depth_ratio), overlap(b, a, grid, min_depth_ratio));
+      if (o > min_overlap) candidates.emplace_back(o, b);
+    }
+    std::sort(candidates.rbegin(), candidates.rend());
+    for (size_t k = 0; k < candidates.size() && static_cast<int>(k) < max_partners; ++k) {
+      add(a, candidates[k].second);
+    }
+  }
+  std::sort(pairs.begin(), pairs.end());
+  return pairs;
+}
+
+DenseBaProblem KeyframeGraph::buildProblem(const CameraModel& grid,
+                                           const std::vector<GraphEdge>& edges,
+                                           std::vector<int>* ids) const {
+  DenseBaProblem problem;
+  problem.camera = grid;
+  ids->clear();
+  for (const GraphEdge& e : edges) {
+    ids->push_back(e.i);
+    if (!e.T_i_other) ids->push_back(e.j);
+  }
+  std::sort(ids->begin(), ids->end());
+  ids->erase(std::unique(ids->begin(), ids->end()), ids->end());
+  std::vector<int> index(keyframes_.size(), -1);
+  for (size_t n = 0; n < ids->size(); ++n) {
+    index[(*ids)[n]] = static_cast<int>(n);
+    problem.keyframes.push_back(keyframes_[(*ids)[n]].ba);
+    problem.keyframes.back().fixed_pose = false;
+  }
+  for (const GraphEdge& e : edges) {
+    DenseBaEdge be;
+    be.i = index[e.i];
+    be.j = e.T_i_other ? be.i : index[e.j];
     be.target = e.target;
     be.weight = e.weight;
     be.T_i_other = e.T_i_other;

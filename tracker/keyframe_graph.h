@@ -8,6 +8,7 @@
 #pragma once
 
 #include <optional>
+#include <utility>
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -21,12 +22,13 @@ namespace radslam {
 struct KeyframeData {
   int id = 0;
   int64_t frame_index = 0;
-  Header header;        // of the frame it was made from (utime = sensor time)
-  cv::Mat color;        // working resolution (released when the keyframe leaves the window)
-  cv::Mat grey;         // CV_8UC1 working resolution (released likewise)
-  cv::Mat structure;    // CV_32FC3 grid: structure tensor of grey (flow confidence)
-  cv::Mat gradients;    // CV_32FC2 working resolution: (gx, gy) of grey (refinement)
-  cv::Mat right_grey;   // CV_8UC1 working resolution, stereo only
+  Header header;       // of the frame it was made from (utime = sensor time)
+  cv::Mat color;       // working resolution (released when the keyframe leaves the window)
+  cv::Mat grey;        // CV_8UC1 working resolution (released likewise)
+  cv::Mat structure;   // CV_32FC3 grid: structure tensor of grey (flow confidence)
+  cv::Mat gradients;   // CV_32FC2 working resolution: (gx, gy) of grey (refinement)
+  cv::Mat right_grey;  // CV_8UC1 working resolution, stereo only
+  cv::Mat stereo_target, stereo_weight;  // the last stereo edge's correspondences (stereo only)
   cv::Mat moving;       // CV_8UC1 working resolution, 255 = moving object; empty: none (released
                         // with the colour)
   cv::Mat moving_grid;  // CV_8UC1 grid: cells of `moving` (tracker/frontend_flow.h)
@@ -123,6 +125,19 @@ class KeyframeGraph {
   /// variances as priors; the edges among them. *ids receives the keyframe id of each window
   /// keyframe's problem index (anchors follow them and are never written back).
   DenseBaProblem buildProblem(const CameraModel& grid, std::vector<int>* ids) const;
+  /// Pairs (a < b) of keyframes that still have their grey image, for global BA: each keyframe
+  /// with its max_partners most overlapping others (by the current estimate, both ways above
+  /// min_overlap), consecutive keyframes always.
+  std::vector<std::pair<int, int>> globalPairs(const CameraModel& grid, double min_overlap,
+                                               int max_partners, double min_depth_ratio) const;
+  /// A dense BA problem over the keyframes the given edges join (ids ascending, so the oldest
+  /// is index 0, the gauge), all poses free, with their current priors; *ids receives the
+  /// keyframe id of each problem index.
+  DenseBaProblem buildProblem(const CameraModel& grid, const std::vector<GraphEdge>& edges,
+                              std::vector<int>* ids) const;
+  /// Makes a keyframe outside the window a fixed anchor: its pose fixed, its inverse depths held
+  /// by their current estimate and marginal variance (what a departing keyframe becomes).
+  void anchor(int id);
   /// Copies optimised poses and inverse depths back.
   void writeBack(const DenseBaProblem& problem, const std::vector<int>& ids);
   /// Stores the marginals of a problem built by buildProblem.

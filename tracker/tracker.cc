@@ -101,7 +101,13 @@ struct Tracker::Impl {
   /// are tracked.
   bool measureLoop(int id, int a);
   void measureStereo(int id, WarmStart warm_start);
+  /// The inverse-depth prior of keyframe k (sensor depth where measured, else weak) into *out.
+  void setPrior(const KeyframeData& k, DenseBaKeyframe* out) const;
   void setPriors();
+  DenseBaGauge gauge(const DenseBaProblem& problem) const;
+  /// Global BA over every keyframe that kept its image (finish()): flow edges between each and
+  /// its most overlapping others, warm-started by the final estimate, then one BA over all.
+  void globalBa(TrackerOutput* out);
   bool runBa(int iterations);
   void updateMarginals();
   /// New keyframes and changed ones that are due (all changed ones when `now`).
@@ -177,7 +183,10 @@ Tracker::Impl::Impl(const TrackerParams& params, TrackerMode m)
         return f;
       }()),
       flow(flow_options),
-      graph(params.window_size, params.loop_min_overlap <= 1 ? params.loop_max_kept_images : 0,
+      graph(params.window_size,
+            params.loop_min_overlap <= 1 || params.global_ba_iterations > 0
+                ? params.loop_max_kept_images
+                : 0,
             params.keep_departed_edges),
       aligner([&] {
         MotionOnlyOptions m;
@@ -293,6 +302,7 @@ TrackerOutput Tracker::finish() {
     if (params_.final_ba_iterations > 0 && s.runBa(params_.final_ba_iterations)) {
       s.updateMarginals();
     }
+    if (params_.global_ba_iterations > 0) s.globalBa(&out);
     s.realignFrames(nullptr);
     s.emitChangedKeyframes(&out, true);
   }
@@ -632,7 +642,7 @@ Correspondences Tracker::Impl::correspond(const cv::Mat& grey_a, const cv::Mat& 
 }
 
 std::pair<Correspondences, Correspondences> Tracker::Impl::measureBothWays(int a, int b,
-                                                                          WarmStart warm_start) {
+                                                                           WarmStart warm_start) {
   const GridGeometry& g = preparer->geometry();
   const KeyframeData& ka = graph.keyframe(a);
   const KeyframeData& kb = graph.keyframe(b);
@@ -686,36 +696,113 @@ void Tracker::Impl::measureStereo(int id, WarmStart warm_start) {
   const Correspondences c = correspond(k.grey, k.gradients, k.structure, k.right_grey, f_lr, f_rl,
                                        k.moving_grid, k.moving_grid);
   graph.setEdge(GraphEdge{id, -1, c.target, c.weight, T_left_right});
+  // Kept with the keyframe for global BA (the window's edge goes when the keyframe leaves).
+  KeyframeData& kept = graph.keyframe(id);
+  kept.stereo_target = c.target;
+  kept.stereo_weight = c.weight;
+}
+
+void Tracker::Impl::setPrior(const KeyframeData& k, DenseBaKeyframe* out) const {
+  // A weak prior keeps pixels without parallax determined; in RGB-D the sensor prior replaces
+  // it where the sensor measured. Monocular "fixed": towards init_inv_depth, which also holds
+  // the map's scale (no data constrain it); otherwise towards the keyframe's median. With
+  // metric depth it is much weaker: pulling far points towards the median depth biases the
+  // scale the stereo edges set.
+  const double median = mode == TrackerMode::kMono && p.mono_prior_mean == "fixed"
+                            ? p.init_inv_depth
+                            : medianPositive(k.ba.inv_depth, p.init_inv_depth);
+  const double weak_sigma =
+      (mode == TrackerMode::kMono ? p.mono_prior_rel_sigma : p.metric_prior_rel_sigma) * median;
+  out->prior_inv_depth = cv::Mat(k.ba.inv_depth.size(), CV_32FC1, cv::Scalar(median));
+  out->prior_inv_depth_var =
+      cv::Mat(k.ba.inv_depth.size(), CV_32FC1, cv::Scalar(weak_sigma * weak_sigma));
+  if (!k.sensor_inv_depth.empty()) {
+    for (int v = 0; v < k.sensor_inv_depth.rows; ++v) {
+      for (int u = 0; u < k.sensor_inv_depth.cols; ++u) {
+        const float var = k.sensor_inv_depth_var.at<float>(v, u);
+        if (var > 0 && std::isfinite(k.sensor_inv_depth.at<float>(v, u))) {
+          out->prior_inv_depth.at<float>(v, u) = k.sensor_inv_depth.at<float>(v, u);
+          out->prior_inv_depth_var.at<float>(v, u) = var;
+        }
+      }
+    }
+  }
 }
 
 void Tracker::Impl::setPriors() {
   for (int id : graph.windowIds()) {
     KeyframeData& k = graph.keyframe(id);
-    // A weak prior keeps pixels without parallax determined; in RGB-D the sensor prior replaces
-    // it where the sensor measured. Monocular "fixed": towards init_inv_depth, which also holds
-    // the map's scale (no data constrain it); otherwise towards the keyframe's median. With
-    // metric depth it is much weaker: pulling far points towards the median depth biases the
-    // scale the stereo edges set.
-    const double median = mode == TrackerMode::kMono && p.mono_prior_mean == "fixed"
-                              ? p.init_inv_depth
-                              : medianPositive(k.ba.inv_depth, p.init_inv_depth);
-    const double weak_sigma =
-        (mode == TrackerMode::kMono ? p.mono_prior_rel_sigma : p.metric_prior_rel_sigma) * median;
-    k.ba.prior_inv_depth = cv::Mat(k.ba.inv_depth.size(), CV_32FC1, cv::Scalar(median));
-    k.ba.prior_inv_depth_var =
-        cv::Mat(k.ba.inv_depth.size(), CV_32FC1, cv::Scalar(weak_sigma * weak_sigma));
-    if (!k.sensor_inv_depth.empty()) {
-      for (int v = 0; v < k.sensor_inv_depth.rows; ++v) {
-        for (int u = 0; u < k.sensor_inv_depth.cols; ++u) {
-          const float var = k.sensor_inv_depth_var.at<float>(v, u);
-          if (var > 0 && std::isfinite(k.sensor_inv_depth.at<float>(v, u))) {
-            k.ba.prior_inv_depth.at<float>(v, u) = k.sensor_inv_depth.at<float>(v, u);
-            k.ba.prior_inv_depth_var.at<float>(v, u) = var;
-          }
-        }
+    setPrior(k, &k.ba);
+  }
+}
+
+DenseBaGauge Tracker::Impl::gauge(const DenseBaProblem& problem) const {
+  if (mode != TrackerMode::kMono || p.mono_gauge == "first_pose") return DenseBaGauge::kFirstPose;
+  if (p.mono_gauge == "first_two_poses") {
+    return problem.keyframes.size() >= 2 ? DenseBaGauge::kFirstTwoPoses : DenseBaGauge::kFirstPose;
+  }
+  if (problem.keyframes.size() >= 2) {
+    // Fixing a degenerate baseline (pure rotation) would fix noise; the prior keeps the
+    // scale then.
+    const double baseline = (problem.keyframes[1].T_world_cam.translation() -
+                             problem.keyframes[0].T_world_cam.translation())
+                                .norm();
+    const double depth = 1.0 / medianPositive(problem.keyframes[0].inv_depth, 1.0);
+    if (baseline > 1e-4 * depth) return DenseBaGauge::kFirstPoseAndScale;
+  }
+  return DenseBaGauge::kFirstPose;
+}
+
+void Tracker::Impl::globalBa(TrackerOutput* out) {
+  const auto t0 = Clock::now();
+  const GridGeometry& g = preparer->geometry();
+  std::vector<GraphEdge> edges;
+  for (const auto& [a, b] :
+       graph.globalPairs(g.grid, p.global_min_overlap, p.global_max_partners, p.min_depth_ratio)) {
+    const auto [c_ab, c_ba] = measureBothWays(a, b, WarmStart::kWarp);
+    if (c_ab.valid_fraction < p.loop_min_valid || c_ba.valid_fraction < p.loop_min_valid) continue;
+    edges.push_back(GraphEdge{a, b, c_ab.target, c_ab.weight, std::nullopt});
+    edges.push_back(GraphEdge{b, a, c_ba.target, c_ba.weight, std::nullopt});
+  }
+  stats.flow_ms += msSince(t0);
+  if (edges.empty()) return;
+  if (mode == TrackerMode::kStereo) {
+    const SE3 T_left_right(SO3(), Vec3(baseline_m, 0, 0));
+    std::vector<int> joined;
+    for (const GraphEdge& e : edges) joined.push_back(e.i);
+    std::sort(joined.begin(), joined.end());
+    joined.erase(std::unique(joined.begin(), joined.end()), joined.end());
+    for (int id : joined) {
+      const KeyframeData& k = graph.keyframe(id);
+      if (!k.stereo_target.empty()) {
+        edges.push_back(GraphEdge{id, -1, k.stereo_target, k.stereo_weight, T_left_right});
       }
     }
   }
+  std::vector<int> ids;
+  DenseBaProblem problem = graph.buildProblem(g.grid, edges, &ids);
+  for (size_t n = 0; n < ids.size(); ++n) setPrior(graph.keyframe(ids[n]), &problem.keyframes[n]);
+  DenseBaOptions options = ba_options;
+  options.max_iterations = p.global_ba_iterations;
+  options.gauge = gauge(problem);
+  ba.setOptions(options);
+  const DenseBaSummary summary = ba.optimize(&problem);
+  stats.ba_ms += summary.total_ms;
+  if (!summary.ok) return;
+  graph.writeBack(problem, ids);
+  const auto t_marginals = Clock::now();
+  graph.setMarginals(ba.computeMarginals(problem), ids);
+  stats.ba_ms += msSince(t_marginals);
+  for (int id : ids) {
+    KeyframeData& k = graph.keyframe(id);
+    if (k.in_window) continue;
+    // A departed keyframe stays an anchor (tracking may go on), now at the global estimate.
+    graph.anchor(id);
+    if (!k.color.empty() && graph.changed(id, tolerance)) {
+      out->keyframes.push_back(keyframeMessage(id));
+    }
+  }
+  stats.global_ba_edges = static_cast<int>(edges.size());
 }
 
 bool Tracker::Impl::runBa(int iterations) {
@@ -729,25 +816,7 @@ bool Tracker::Impl::runBa(int iterations) {
   DenseBaProblem problem = graph.buildProblem(g.grid, &ids);
   DenseBaOptions options = ba_options;
   options.max_iterations = iterations;
-  if (mode != TrackerMode::kMono) {
-    options.gauge = DenseBaGauge::kFirstPose;
-  } else if (p.mono_gauge == "first_pose") {
-    options.gauge = DenseBaGauge::kFirstPose;
-  } else if (p.mono_gauge == "first_two_poses") {
-    options.gauge =
-        problem.keyframes.size() >= 2 ? DenseBaGauge::kFirstTwoPoses : DenseBaGauge::kFirstPose;
-  } else {
-    options.gauge = DenseBaGauge::kFirstPose;
-    if (problem.keyframes.size() >= 2) {
-      // Fixing a degenerate baseline (pure rotation) would fix noise; the prior keeps the
-      // scale then.
-      const double baseline = (problem.keyframes[1].T_world_cam.translation() -
-                               problem.keyframes[0].T_world_cam.translation())
-                                  .norm();
-      const double depth = 1.0 / medianPositive(problem.keyframes[0].inv_depth, 1.0);
-      if (baseline > 1e-4 * depth) options.gauge = DenseBaGauge::kFirstPoseAndScale;
-    }
-  }
+  options.gauge = gauge(problem);
   ba.setOptions(options);
   const DenseBaSummary summary = ba.optimize(&problem);
   stats.ba_ms += summary.total_ms;

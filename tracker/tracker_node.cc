@@ -82,6 +82,8 @@ void validateTrackerParams(const TrackerParams& p) {
   check(p.loop_max_kept_images >= 0, "loop_max_kept_images must be >= 0");
   check(p.ba_iterations >= 1 && p.final_ba_iterations >= 0,
         "ba_iterations >= 1, final_ba_iterations >= 0");
+  check(p.global_ba_iterations >= 0 && p.global_max_partners >= 0 && p.global_min_overlap >= 0,
+        "global_ba_iterations, global_max_partners and global_min_overlap must be >= 0");
   check(p.robust_kernel == "huber" || p.robust_kernel == "cauchy",
         "robust_kernel must be huber or cauchy");
   check(p.robust_scale >= 0, "robust_scale must be >= 0 (0 = none)");
@@ -159,6 +161,9 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("keep_departed_edges", &p.keep_departed_edges);
   r.get("ba_iterations", &p.ba_iterations);
   r.get("final_ba_iterations", &p.final_ba_iterations);
+  r.get("global_ba_iterations", &p.global_ba_iterations);
+  r.get("global_min_overlap", &p.global_min_overlap);
+  r.get("global_max_partners", &p.global_max_partners);
   r.get("robust_kernel", &p.robust_kernel);
   r.get("robust_scale", &p.robust_scale);
   r.get("min_depth_ratio", &p.min_depth_ratio);

@@ -112,6 +112,37 @@ TEST(KeyframeGraph, DepartedKeyframesCanStayAsAnchorsOfTheirEdges) {
   EXPECT_TRUE(graph.edges().empty());
 }
 
+TEST(KeyframeGraph, GlobalPairsAndProblemSpanEveryKeptKeyframe) {
+  const CameraModel grid = gridCamera();
+  KeyframeGraph graph(2, 2);
+  // Keyframes 0..4 along x: 0 loses its image once three have left the window.
+  for (double x : {0.0, 0.1, 0.2, 3.0, 0.15}) {
+    graph.add(keyframeAt(x));
+    graph.slideWindow();
+  }
+  EXPECT_TRUE(graph.keyframe(0).grey.empty());
+  const auto pairs = graph.globalPairs(grid, 0.5, 4, 0.2);
+  // Consecutive keyframes with images are always paired; 4 overlaps 1 and 2 (not 3, 3 m away).
+  const std::vector<std::pair<int, int>> expected = {{1, 2}, {1, 4}, {2, 3}, {2, 4}, {3, 4}};
+  EXPECT_EQ(pairs, expected);
+  std::vector<GraphEdge> edges;
+  for (const auto& [a, b] : pairs) {
+    edges.push_back(edge(a, b));
+    edges.push_back(edge(b, a));
+  }
+  std::vector<int> ids;
+  const DenseBaProblem problem = graph.buildProblem(grid, edges, &ids);
+  EXPECT_EQ(ids, (std::vector<int>{1, 2, 3, 4}));
+  ASSERT_EQ(problem.keyframes.size(), 4u);
+  // Departed keyframes are anchors in the window's BA, free here.
+  EXPECT_TRUE(graph.keyframe(1).ba.fixed_pose);
+  for (const DenseBaKeyframe& k : problem.keyframes) EXPECT_FALSE(k.fixed_pose);
+  ASSERT_EQ(problem.edges.size(), edges.size());
+  EXPECT_EQ(problem.edges[0].i, 0);  // keyframe 1
+  EXPECT_EQ(problem.edges[0].j, 1);  // keyframe 2
+  EXPECT_EQ(problem.edges[2].j, 3);  // keyframe 4
+}
+
 TEST(KeyframeGraph, RejectsInvalidSizes) {
   EXPECT_THROW(KeyframeGraph(1), std::invalid_argument);
   EXPECT_THROW(KeyframeGraph(4, -1), std::invalid_argument);
