@@ -10,6 +10,7 @@
 
 #include "tracker/frontend_depth.h"
 #include "tracker/frontend_refine.h"
+#include "tracker/mono_init.h"
 #include "tracker/motion_only.h"
 #include "tracker/object_tracker.h"
 
@@ -72,7 +73,7 @@ struct Tracker::Impl {
     cv::Mat forward, backward;  // keyframe -> frame, frame -> keyframe (may be empty)
     Correspondences correspondences;
   };
-  void makeKeyframe(const Frame& frame, const PreparedImage& image, const SE3& T_world_frame,
+  void makeKeyframe(const Frame& frame, const PreparedImage& image, SE3 T_world_frame,
                     const TrackedFlow* tracked, bool restart, TrackerOutput* out);
 
   KeyframeData newKeyframeData(const Frame& frame, const PreparedImage& image,
@@ -274,6 +275,7 @@ TrackerOutput Tracker::process(const Frame& frame) {
   TrackerOutput out;
   s.stats.ba_ms = 0;
   s.stats.flow_ms = 0;
+  s.stats.keyframe_ba_deg = 0;
   if (s.graph.empty()) {
     s.initialise(frame, image, &out);
   } else {
@@ -429,6 +431,7 @@ void Tracker::Impl::track(const Frame& frame, const PreparedImage& image, Tracke
   const FlowMotion motion = measureFlowMotion(c.target, c.weight, g.grid, R_frame_kf);
   stats.mean_flow_px = motion.mean_flow_px;
   stats.mean_parallax_px = motion.mean_parallax_px;
+  stats.alignment_deg = (T_pred.inverse() * aligned.T_world_frame).so3().log().norm() * 180 / M_PI;
   KeyframePolicy policy = keyframe_policy;
   if (mode == TrackerMode::kMono && graph.windowIds().size() == 1) {
     // The second monocular keyframe starts the map: its BA needs a baseline, and the poses
@@ -506,12 +509,26 @@ ObjectList Tracker::Impl::trackObjects(const Frame& frame, const PreparedImage& 
 // ---------------------------------------------------------------------------------------------
 // Keyframes
 
-void Tracker::Impl::makeKeyframe(const Frame& frame, const PreparedImage& image,
-                                 const SE3& T_world_frame, const TrackedFlow* tracked, bool restart,
-                                 TrackerOutput* out) {
+void Tracker::Impl::makeKeyframe(const Frame& frame, const PreparedImage& image, SE3 T_world_frame,
+                                 const TrackedFlow* tracked, bool restart, TrackerOutput* out) {
   const GridGeometry& g = preparer->geometry();
-  KeyframeData kf = newKeyframeData(frame, image, T_world_frame);
   const bool first = graph.empty();
+  if (mode == TrackerMode::kMono && tracked && !restart && graph.windowIds().size() == 1) {
+    // The second monocular keyframe: two-view geometry where the translation shows, so that BA
+    // does not start from the constant-depth alignment.
+    KeyframeData& prev = graph.last();
+    TwoViewOptions two_view;
+    two_view.median_inv_depth = p.init_inv_depth;
+    two_view.min_parallax_deg = p.mono_init_min_parallax_deg;
+    const TwoViewResult init = initializeTwoView(g.grid, tracked->correspondences.target,
+                                                 tracked->correspondences.weight, two_view);
+    stats.two_view_init = init.ok;
+    if (init.ok) {
+      T_world_frame = prev.ba.T_world_cam * init.T_b_a.inverse();
+      fillInverseDepth(&prev.ba.inv_depth, init.inv_depth_a, p.init_inv_depth);
+    }
+  }
+  KeyframeData kf = newKeyframeData(frame, image, T_world_frame);
 
   // Initial inverse depth: sensor (RGB-D) > previous keyframe carried along the flow > median.
   cv::Mat carried;
@@ -603,6 +620,8 @@ void Tracker::Impl::makeKeyframe(const Frame& frame, const PreparedImage& image,
     stats.flow_ms += msSince(t_flow);
     if (can_ba) runBa(p.ba_iterations);
   }
+  stats.keyframe_ba_deg =
+      (T_world_frame.inverse() * graph.keyframe(id).ba.T_world_cam).so3().log().norm() * 180 / M_PI;
   if (can_ba && ba_ran) updateMarginals();
   if (ba_ran && !first_ba_done) {
     first_ba_done = true;

@@ -100,8 +100,9 @@ struct TrackerParams {
   int loop_max_kept_images = 200;  // keyframes outside the window that keep their grey image
   // Edges between a keyframe leaving the window and the window stay, with the departed
   // keyframe fixed (KeyframeGraph): a longer memory of scale and rotation at the cost of BA
-  // time for its depths.
-  bool keep_departed_edges = false;
+  // time for its depths. Monocular KITTI 07, mean Sim3 ATE over six start frames: 0.50 m
+  // without, 0.27 m with.
+  bool keep_departed_edges = true;
   int ba_iterations = 4;        // Levenberg-Marquardt iterations per BA call
   int final_ba_iterations = 8;  // in finish()
   // Global BA in finish(): every keyframe that kept its image (loop_max_kept_images) gets flow
@@ -125,7 +126,11 @@ struct TrackerParams {
   std::string mono_prior_mean = "fixed";  // fixed (init_inv_depth) | median (of the keyframe)
   double init_inv_depth = 1.0;            // monocular keyframe 0, 1/scene unit
   double mono_init_flow_px = 7.5;         // grid px of mean flow before the second keyframe
-  double mono_prior_rel_sigma = 1.0;      // weak inverse-depth prior, relative to the median
+  // The second keyframe's pose and the first one's depths come from the essential matrix
+  // (tracker/mono_init.h) when the median ray angle of its inliers reaches this (deg); below,
+  // from the constant-depth alignment (rotation).
+  double mono_init_min_parallax_deg = 1.0;
+  double mono_prior_rel_sigma = 1.0;  // weak inverse-depth prior, relative to the median
   // RGB-D and stereo: the same prior, towards the keyframe's median. At 1.0 it pulled the far
   // half of the synthetic street forward and made the stereo scale 15 % too large.
   double metric_prior_rel_sigma = 10.0;
@@ -186,6 +191,9 @@ struct TrackerStats {
   int lost_frames = 0;          // frames reported LOST so far
   int loop_edges = 0;           // loop edge pairs made so far
   int global_ba_edges = 0;      // flow edges of the global BA in finish()
+  double alignment_deg = 0;     // rotation the alignment moved the frame from its prediction
+  double keyframe_ba_deg = 0;   // rotation BA moved a new keyframe from its aligned pose
+  bool two_view_init = false;   // the second monocular keyframe came from two-view geometry
 };
 
 struct TrackerOutput {

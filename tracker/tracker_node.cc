@@ -95,6 +95,7 @@ void validateTrackerParams(const TrackerParams& p) {
         "mono_prior_mean must be fixed or median");
   check(p.init_inv_depth > 0, "init_inv_depth must be > 0");
   check(p.mono_init_flow_px > 0, "mono_init_flow_px must be > 0");
+  check(p.mono_init_min_parallax_deg >= 0, "mono_init_min_parallax_deg must be >= 0");
   check(p.mono_prior_rel_sigma > 0, "mono_prior_rel_sigma must be > 0");
   check(p.metric_prior_rel_sigma > 0, "metric_prior_rel_sigma must be > 0");
   check(p.depth_sigma_a > 0 && p.depth_sigma_b >= 0, "depth_sigma_a > 0, depth_sigma_b >= 0");
@@ -171,6 +172,7 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("mono_prior_mean", &p.mono_prior_mean);
   r.get("init_inv_depth", &p.init_inv_depth);
   r.get("mono_init_flow_px", &p.mono_init_flow_px);
+  r.get("mono_init_min_parallax_deg", &p.mono_init_min_parallax_deg);
   r.get("mono_prior_rel_sigma", &p.mono_prior_rel_sigma);
   r.get("metric_prior_rel_sigma", &p.metric_prior_rel_sigma);
   r.get("depth_sigma_a", &p.depth_sigma_a);
