@@ -416,6 +416,12 @@ SE3 SyntheticScene::cameraPose(int frame) const {
   return synth::cameraPose(*scene_, timestamp(frame));
 }
 
+double SyntheticScene::objectTime(int frame) const {
+  // Frozen at the last frame's pose: objects that drive ahead of the camera stay ahead of it
+  // for the whole sequence (frozen at the first pose, the camera would drive into them).
+  return config_.freeze_objects ? timestamp(std::max(config_.frames - 1, 0)) : timestamp(frame);
+}
+
 SE3 SyntheticScene::rightCameraPose(int frame) const {
   return cameraPose(frame) * SE3(SO3(), Vec3(config_.baseline_m, 0, 0));
 }
@@ -423,7 +429,7 @@ SE3 SyntheticScene::rightCameraPose(int frame) const {
 std::vector<ObjectPoseSample> SyntheticScene::objectPoses(int frame) const {
   std::vector<ObjectPoseSample> poses;
   const double t = timestamp(frame);
-  const double t_objects = config_.freeze_objects ? 0.0 : t;
+  const double t_objects = objectTime(frame);
   for (const synth::MovingObject& o : scene_->objects)
     poses.push_back(
         ObjectPoseSample{t, o.object_id, o.class_id, synth::objectPose(*scene_, o, t_objects)});
@@ -449,7 +455,7 @@ RenderedView SyntheticScene::render(const SE3& T_world_cam, const CameraModel& c
     throw std::invalid_argument("SyntheticScene::render: bad camera " +
                                 std::to_string(camera.width) + "x" + std::to_string(camera.height) +
                                 " fx " + std::to_string(camera.fx));
-  const double t_objects = config_.freeze_objects ? 0.0 : timestamp(frame);
+  const double t_objects = objectTime(frame);
   return Renderer(*scene_, T_world_cam, camera, t_objects).render(config_.threads);
 }
 

@@ -51,7 +51,7 @@ struct SyntheticConfig {
   double image_noise_sigma = 0;   // Gaussian colour noise, grey levels (0 = none)
   double depth_noise_rel = 0;     // Kinect-like depth noise sigma = depth_noise_rel * z^2 (1/m)
   int threads = 1;                // render threads
-  bool freeze_objects = false;    // moving objects stay where they are at time 0 (a reference)
+  bool freeze_objects = false;    // moving objects stay at their last frame's pose (a reference)
   double fps = 0;                 // frame rate, Hz (0 = the scene's: 30 rooms, 10 streets)
 };
 
@@ -84,6 +84,9 @@ class SyntheticScene {
   int numFrames() const { return config_.frames; }
   double fps() const;                 // Hz: 30 for rooms, 10 for streets
   double timestamp(int frame) const;  // s = frame / fps
+  /// Time (s) at which the moving objects are posed for a frame: its own, or with
+  /// freeze_objects the last frame's.
+  double objectTime(int frame) const;
   CameraModel camera() const;         // pinhole, config size
   double baseline() const { return config_.baseline_m; }
 

@@ -403,8 +403,10 @@ SceneData buildScene(const std::string& name, uint64_t seed, int frames, double 
     addDoor(&b, &s, 102, yawPose(0.0, Vec3(xg, -7.0, 0)), w, 2.8, 0.16, 1.2, 6.0,
             b.material(MaterialKind::kDoor, {0.35, 0.5, 0.4}, {0.2, 0.3, 0.25}, 0.65), "building");
   } else if (name == "large") {
+    // A truck in the lane beside the camera's, a few metres ahead: it fills much of the left
+    // half of the view, and frozen at its first pose it is passed, not driven into.
     const double p[8] = {
-        4.5, 1.5, 0.3, -2.0, 0.5, 0.35, rng.uniform(0, kTwoPi), rng.uniform(0, kTwoPi)};
+        3.5, 1.5, 0.3, 0.6, 0.4, 0.35, rng.uniform(0, kTwoPi), rng.uniform(0, kTwoPi)};
     addTruck(&b, &s, 100, p);
   }
   bool has_car = false, has_truck = false;

@@ -20,7 +20,8 @@ const char* kUsage = R"(usage: radslam-synth --scene NAME --out DIR [options]
   --seed S         scene, texture and noise seed (default 1); same seed -> same files
   --noise          add sensor noise (colour sigma 2 grey levels, depth sigma 0.0015 z^2)
   --no-stereo      do not render the right images
-  --freeze-objects moving objects stay at their first pose (the same scene without motion)
+  --freeze-objects moving objects stay at their last frame's pose (the scene without motion;
+                   objects ahead of the camera stay ahead)
   --fps F          frame rate, Hz (default: the scene's, 30 for rooms, 10 for streets)
   --threads T      render threads (default 1)
 )";
