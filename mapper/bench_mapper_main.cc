@@ -2,8 +2,9 @@
 // Keyframes are either oracle (ground-truth poses, sensor depth with a sensor-noise variance)
 // or a monocular tracker run (its keyframe poses and depths, brought into the ground-truth frame
 // by a similarity). The field trains for a fixed budget of rays on one thread, then is
-// evaluated: PSNR on the keyframes (at the mapper's poses) and on held-out frames (every 10th
-// non-keyframe, at ground-truth poses), depth L1 against the sensor depth, training rays per
+// evaluated: PSNR on the keyframes (at the mapper's poses and exposures) and on held-out frames
+// (every 10th non-keyframe, at ground-truth poses, with the exposure interpolated in time between
+// the keyframes around them), depth L1 against the sensor depth, training rays per
 // CPU second, the training time to come within 0.5 dB of the final PSNR, peak memory. Prints a
 // report and one tab-separated RESULT line (scripts/bench mapper builds its table from them).
 #include <time.h>
@@ -98,11 +99,14 @@ double validDepthPixels(const std::vector<cv::Mat>& depths) {
   return n;
 }
 
+// Renders under exposures[i] when given (the keyframes' or ones interpolated between them).
 double meanPsnr(const Mapper& mapper, const std::vector<EvalFrame>& frames,
-                const std::vector<SE3>& poses, const CameraModel& camera, DepthError* depth) {
+                const std::vector<SE3>& poses, const CameraModel& camera, DepthError* depth,
+                const std::vector<Vec6>* exposures = nullptr) {
   double sum = 0;
   for (size_t i = 0; i < frames.size(); ++i) {
-    const RenderImages r = mapper.render(poses[i], camera);
+    RenderImages r = mapper.render(poses[i], camera);
+    if (exposures) applyExposure((*exposures)[i], &r.color);
     sum += psnr(frames[i].color, r.color);
     if (depth && !frames[i].depth.empty()) *depth += depthError(r.depth, frames[i].depth);
   }
@@ -290,9 +294,13 @@ int run(int argc, char** argv) {
   }
   auto progressPsnr = [&] {
     std::vector<SE3> poses;
-    for (int k : progress_kf)
-      poses.push_back(mapper.keyframes().entry(mapper.keyframes().find(kf_ids[k])).T_world_cam);
-    return meanPsnr(mapper, progress, poses, camera, nullptr);
+    std::vector<Vec6> exposures;
+    for (int k : progress_kf) {
+      const KeyframeEntry& e = mapper.keyframes().entry(mapper.keyframes().find(kf_ids[k]));
+      poses.push_back(e.T_world_cam);
+      exposures.push_back(e.exposure);
+    }
+    return meanPsnr(mapper, progress, poses, camera, nullptr, &exposures);
   };
 
   int64_t rays = 0, samples = 0;
@@ -320,11 +328,29 @@ int run(int argc, char** argv) {
     }
 
   std::vector<SE3> kf_poses;
-  for (size_t k = 0; k < kf_frames.size(); ++k)
-    kf_poses.push_back(mapper.keyframes().entry(mapper.keyframes().find(kf_ids[k])).T_world_cam);
+  std::vector<Vec6> kf_exposures;
+  for (size_t k = 0; k < kf_frames.size(); ++k) {
+    const KeyframeEntry& e = mapper.keyframes().entry(mapper.keyframes().find(kf_ids[k]));
+    kf_poses.push_back(e.T_world_cam);
+    kf_exposures.push_back(e.exposure);
+  }
+  // Held-out frames: the exposure interpolated in time between the keyframes around them (the
+  // frame's own image is not used); kf_frames are in time order.
+  std::vector<Vec6> held_exposures;
+  for (const EvalFrame& f : held) {
+    size_t b = 0;
+    while (b + 1 < kf_frames.size() && kf_frames[b].utime < f.utime) ++b;
+    const size_t a = b > 0 && kf_frames[b].utime > f.utime ? b - 1 : b;
+    held_exposures.push_back(interpolateExposure(double(f.utime), double(kf_frames[a].utime),
+                                                 kf_exposures[a], double(kf_frames[b].utime),
+                                                 kf_exposures[b]));
+  }
   DepthError kf_depth_err, held_depth_err;
-  const double psnr_kf = meanPsnr(mapper, kf_frames, kf_poses, camera, &kf_depth_err);
-  const double psnr_held = meanPsnr(mapper, held, held_poses, camera, &held_depth_err);
+  const double psnr_kf =
+      meanPsnr(mapper, kf_frames, kf_poses, camera, &kf_depth_err, &kf_exposures);
+  const double psnr_held =
+      meanPsnr(mapper, held, held_poses, camera, &held_depth_err, &held_exposures);
+  const double psnr_held_field = meanPsnr(mapper, held, held_poses, camera, nullptr);
   const double rate = rays / std::max(1e-9, train_cpu);
   const double rss = peakRssMb();
 
@@ -339,6 +365,8 @@ int run(int argc, char** argv) {
               kf_depth_err.l1(), 100 * kf_depth_err.coverage());
   std::printf("  held out:  PSNR %.2f dB, depth L1 %.4f m (coverage %.1f%%)\n", psnr_held,
               held_depth_err.l1(), 100 * held_depth_err.coverage());
+  std::printf("  held out at the field's own exposure (the gauge keyframe's): PSNR %.2f dB\n",
+              psnr_held_field);
   std::printf("  peak RSS %.0f MB\n", rss);
   // name, source, mode, keyframes, held, psnr_kf, psnr_held, l1_kf, l1_held, coverage_held,
   // rays/s, t_final, rss, width

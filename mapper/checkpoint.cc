@@ -6,7 +6,8 @@
 //   parameters, Adam first and second moments (f32) and per-voxel step counts (i32)
 //   i64 trainer steps, u64 random state
 //   i64 keyframe arrivals, u32 keyframes, each: ids and header, received and refined poses,
-//   covariance, camera, pose Adam state, statistics, then its images (may be empty)
+//   covariance, camera, pose Adam state, exposure and its Adam state (format 2), statistics,
+//   then its images (may be empty)
 // Written to PATH.tmp and renamed, so a crash never leaves a half-written checkpoint.
 #include <cstdio>
 #include <cstring>
@@ -20,7 +21,8 @@ namespace radslam {
 namespace {
 
 constexpr char kMagic[8] = {'R', 'S', 'M', 'A', 'P', 'C', 'K', '\0'};
-constexpr uint32_t kFormat = 1;
+constexpr uint32_t kFormat = 2;
+constexpr uint32_t kOldestFormat = 1;  // format 1: no exposure (read as zero)
 
 class Writer {
  public:
@@ -201,6 +203,10 @@ void Mapper::saveCheckpoint(const std::string& path, bool with_images) const {
       w.matrix(e.pose_m);
       w.matrix(e.pose_v);
       w.put(e.pose_steps);
+      w.matrix(e.exposure);
+      w.matrix(e.exposure_m);
+      w.matrix(e.exposure_v);
+      w.put(e.exposure_steps);
       w.put(e.loss_ema);
       w.put(e.rays_trained);
       w.put(e.arrival);
@@ -224,8 +230,9 @@ void Mapper::loadCheckpoint(const std::string& path) {
   r.bytes(magic, sizeof(magic));
   if (std::memcmp(magic, kMagic, sizeof(kMagic)) != 0) r.fail("not a radslam mapper checkpoint");
   const uint32_t format = r.get<uint32_t>();
-  if (format != kFormat)
-    r.fail("format " + std::to_string(format) + ", this build reads " + std::to_string(kFormat));
+  if (format < kOldestFormat || format > kFormat)
+    r.fail("format " + std::to_string(format) + ", this build reads " +
+           std::to_string(kOldestFormat) + " to " + std::to_string(kFormat));
   // Everything is read into fresh objects first: a bad file leaves the mapper unchanged.
   Field field;
   SparseAdam adam(params_.trainer.adam);
@@ -291,6 +298,12 @@ void Mapper::loadCheckpoint(const std::string& path) {
     r.matrix(&e.pose_m);
     r.matrix(&e.pose_v);
     e.pose_steps = r.get<int64_t>();
+    if (format >= 2) {
+      r.matrix(&e.exposure);
+      r.matrix(&e.exposure_m);
+      r.matrix(&e.exposure_v);
+      e.exposure_steps = r.get<int64_t>();
+    }
     e.loss_ema = r.get<double>();
     e.rays_trained = r.get<int64_t>();
     e.arrival = r.get<int64_t>();

@@ -23,6 +23,13 @@ struct KeyframeEntry {
   Vec6 pose_m = Vec6::Zero();
   Vec6 pose_v = Vec6::Zero();
   int64_t pose_steps = 0;
+  /// Colour model of this keyframe's camera (auto exposure and white balance, see
+  /// applyExposure in mapper/trainer.h): log gains (R, G, B), then offsets (R, G, B); zero =
+  /// the field's own colour. The gauge keyframe keeps zero, which fixes the field's colours.
+  Vec6 exposure = Vec6::Zero();
+  Vec6 exposure_m = Vec6::Zero();  // its Adam state
+  Vec6 exposure_v = Vec6::Zero();
+  int64_t exposure_steps = 0;
   // Training statistics for choosing keyframes.
   double loss_ema = 0;       // running mean loss per ray (0 = not measured yet)
   int64_t rays_trained = 0;  // rays drawn from this keyframe since it (last) arrived

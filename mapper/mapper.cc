@@ -1,6 +1,7 @@
 #include "mapper/mapper.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <iostream>
 #include <limits>
@@ -139,11 +140,16 @@ void Mapper::allocateFor(const KeyframeEntry& entry) {
 }
 
 void Mapper::seedSurface(const KeyframeEntry& entry, int first_new_block) {
-  // The 8 lattice points around each pixel's surface point, in fine blocks this keyframe has
-  // just allocated (trained blocks are left alone), get the seed density and the pixel's
-  // colour (as a logit, clamped away from 0 and 1): an opaque layer about two voxels thick.
-  // Pixels wider than two voxels on the surface are split into sub-pixels so the layer has
-  // no holes.
+  // Only untouched lattice points (every channel still 0: never seeded, never trained) are
+  // seeded, in any fine block; trained ones are left alone. Density: the 8 lattice points
+  // around each pixel's surface point get the seed density, an opaque layer about two voxels
+  // thick. Colour: every lattice point that trilinear interpolation reads within kColorBand
+  // fine voxels of the surface (in depth) gets the mean colour of the pixels that reach it, as
+  // a logit. Seeding the colour on the surface points only blended it with the untrained grey
+  // in front of them, where renders stop (a single fr1/rpy keyframe rendered at its own pose at
+  // 12 dB). Pixels wider than two voxels on the surface are split into sub-pixels so the layer
+  // has no holes. Free space (seed_free_density) is seeded in the new blocks.
+  constexpr float kColorBand = 2;  // fine voxels either side of the surface
   const Keyframe& kf = entry.keyframe;
   const CameraModel& cam = kf.camera;
   const int fine = field_.numLevels() - 1;
@@ -153,11 +159,36 @@ void Mapper::seedSurface(const KeyframeEntry& entry, int first_new_block) {
   const Eigen::Matrix3f R = entry.T_world_cam.rotation().cast<float>();
   const Eigen::Vector3f t = entry.T_world_cam.translation().cast<float>();
   const cv::Mat& mask = kf.dynamic_mask;
-  auto logit = [](float c) {
-    c = std::clamp(c, 0.02f, 0.98f);
-    return std::log(c / (1.f - c));
+  // The keyframe's image as the field's colour: its exposure undone (zero unless re-sent).
+  float gain[3], offset[3];
+  for (int j = 0; j < 3; ++j) {
+    gain[j] = static_cast<float>(std::exp(entry.exposure[j]));
+    offset[j] = static_cast<float>(entry.exposure[3 + j]);
+  }
+  // Per lattice point of the blocks reached (a slot each, the new blocks first): colour sums
+  // and count, and the surface flag.
+  std::vector<int> slot(field_.numBlocks(fine), -1);
+  std::vector<int> slot_block;
+  for (int b = first_new_block; b < field_.numBlocks(fine); ++b) {
+    slot[b] = static_cast<int>(slot_block.size());
+    slot_block.push_back(b);
+  }
+  std::vector<float> sums(slot_block.size() * Field::kBlockVoxels * 4, 0.f);
+  std::vector<uint8_t> surface(slot_block.size() * Field::kBlockVoxels, 0);
+  // Index of lattice point i among the slots' points, -1 when its block is unallocated.
+  auto pointIndex = [&](const Eigen::Vector3i& i) -> int64_t {
+    const int b = field_.findBlock(fine, blockOf(i.x()), blockOf(i.y()), blockOf(i.z()));
+    if (b < 0) return -1;
+    if (slot[b] < 0) {
+      slot[b] = static_cast<int>(slot_block.size());
+      slot_block.push_back(b);
+      sums.resize(slot_block.size() * Field::kBlockVoxels * 4, 0.f);
+      surface.resize(slot_block.size() * Field::kBlockVoxels, 0);
+    }
+    return static_cast<int64_t>(slot[b]) * Field::kBlockVoxels +
+           Field::voxelInBlock(localOf(i.x()), localOf(i.y()), localOf(i.z()));
   };
-  const float seed = static_cast<float>(params_.seed_density);
+  const int band_steps = static_cast<int>(2 * kColorBand);  // half-voxel steps either side
   for (int y = 0; y < cam.height; ++y) {
     for (int x = 0; x < cam.width; ++x) {
       const float d = kf.depth.at<float>(y, x);
@@ -166,32 +197,91 @@ void Mapper::seedSurface(const KeyframeEntry& entry, int first_new_block) {
       float rgb[3];
       if (kf.color.channels() == 3) {
         const cv::Vec3b c = kf.color.at<cv::Vec3b>(y, x);
-        rgb[0] = logit(c[2] / 255.f);
-        rgb[1] = logit(c[1] / 255.f);
-        rgb[2] = logit(c[0] / 255.f);
+        rgb[0] = c[2] / 255.f;
+        rgb[1] = c[1] / 255.f;
+        rgb[2] = c[0] / 255.f;
       } else {
-        rgb[0] = rgb[1] = rgb[2] = logit(kf.color.at<uint8_t>(y, x) / 255.f);
+        rgb[0] = rgb[1] = rgb[2] = kf.color.at<uint8_t>(y, x) / 255.f;
       }
+      for (int j = 0; j < 3; ++j) rgb[j] = (rgb[j] - offset[j]) / gain[j];
       const float footprint = d / static_cast<float>(std::min(cam.fx, cam.fy));  // m per pixel
       const int k = std::clamp(static_cast<int>(std::ceil(footprint / (2 * s))), 1, 4);
       for (int sy = 0; sy < k; ++sy)
         for (int sx = 0; sx < k; ++sx) {
           const float u = x + (sx + 0.5f) / k - 0.5f, v = y + (sy + 0.5f) / k - 0.5f;
-          const Eigen::Vector3f p =
-              t + R * Eigen::Vector3f(static_cast<float>((u - cam.cx) / cam.fx) * d,
-                                      static_cast<float>((v - cam.cy) / cam.fy) * d, d);
-          const Eigen::Vector3i i0 = (p * inv).array().floor().cast<int>();
-          for (int c = 0; c < 8; ++c) {
-            const Eigen::Vector3i i = i0 + Eigen::Vector3i(c & 1, (c >> 1) & 1, c >> 2);
-            const int b = field_.findBlock(fine, blockOf(i.x()), blockOf(i.y()), blockOf(i.z()));
-            if (b < first_new_block) continue;  // also b < 0
-            float* vox = field_.blockData(fine, b) +
-                         Field::voxelInBlock(localOf(i.x()), localOf(i.y()), localOf(i.z())) * C;
-            vox[0] = seed;
-            for (int ch = 0; ch < 3; ++ch) vox[1 + ch] = rgb[ch];
+          const Eigen::Vector3f dir =
+              R * Eigen::Vector3f(static_cast<float>((u - cam.cx) / cam.fx),
+                                  static_cast<float>((v - cam.cy) / cam.fy), 1.f);
+          for (int step = -band_steps; step <= band_steps; ++step) {
+            const float z = d + 0.5f * s * step;
+            if (!(z > 0)) continue;
+            const Eigen::Vector3f p = t + z * dir;
+            const Eigen::Vector3i i0 = (p * inv).array().floor().cast<int>();
+            for (int c = 0; c < 8; ++c) {
+              const int64_t q = pointIndex(i0 + Eigen::Vector3i(c & 1, (c >> 1) & 1, c >> 2));
+              if (q < 0) continue;
+              float* sum = &sums[static_cast<size_t>(q) * 4];
+              for (int j = 0; j < 3; ++j) sum[j] += rgb[j];
+              sum[3] += 1.f;
+              if (step == 0) surface[q] = 1;
+            }
           }
         }
     }
+  }
+  auto logit = [](float c) {
+    c = std::clamp(c, 0.02f, 0.98f);
+    return std::log(c / (1.f - c));
+  };
+  // Free space: a lattice point that projects onto a measured depth more than the colour band
+  // (plus the cell it starts) behind it. Points behind surfaces, outside the image or over
+  // holes stay at the default density.
+  const float free_density = static_cast<float>(params_.seed_free_density);
+  const Eigen::Matrix3f Rt = R.transpose();
+  auto seenThrough = [&](const Eigen::Vector3i& i) {
+    const Eigen::Vector3f p = Rt * (i.cast<float>() * s - t);
+    if (!(p.z() > 0)) return false;
+    const int u = static_cast<int>(std::lround(cam.fx * p.x() / p.z() + cam.cx));
+    const int v = static_cast<int>(std::lround(cam.fy * p.y() / p.z() + cam.cy));
+    if (u < 0 || v < 0 || u >= cam.width || v >= cam.height) return false;
+    if (!mask.empty() && mask.at<uint8_t>(v, u) != 0) return false;
+    const float d = kf.depth.at<float>(v, u);
+    if (!(d > 0) || !std::isfinite(kf.depth_var.at<float>(v, u))) return false;
+    return p.z() < d - (kColorBand + 1) * s;
+  };
+  const float seed = static_cast<float>(params_.seed_density);
+  for (size_t k = 0; k < slot_block.size(); ++k) {
+    const int b = slot_block[k];
+    const bool is_new = b >= first_new_block;
+    const size_t base = k * Field::kBlockVoxels;
+    bool any = is_new && free_density < 0;
+    for (int v = 0; v < Field::kBlockVoxels && !any; ++v) any = sums[(base + v) * 4 + 3] > 0;
+    if (!any) continue;
+    float* data = field_.levelData(fine) + static_cast<size_t>(b) * Field::kBlockVoxels * C;
+    const Eigen::Vector3i origin = field_.blockIndex(fine, b) * Field::kBlockDim;
+    bool changed = false;
+    for (int v = 0; v < Field::kBlockVoxels; ++v) {
+      float* vox = data + static_cast<size_t>(v) * C;
+      bool untouched = true;
+      for (int ch = 0; ch < C && untouched; ++ch) untouched = vox[ch] == 0.f;
+      if (!untouched) continue;
+      const float* sum = &sums[(base + v) * 4];
+      if (sum[3] > 0) {
+        if (surface[base + v]) vox[0] = seed;
+        for (int j = 0; j < 3; ++j) vox[1 + j] = logit(sum[j] / sum[3]);
+        changed = true;
+      } else if (is_new && free_density < 0) {
+        const Eigen::Vector3i i =
+            origin + Eigen::Vector3i(v % Field::kBlockDim,
+                                     (v / Field::kBlockDim) % Field::kBlockDim,
+                                     v / (Field::kBlockDim * Field::kBlockDim));
+        if (seenThrough(i)) {
+          vox[0] = free_density;
+          changed = true;
+        }
+      }
+    }
+    if (changed) field_.markChanged(fine, b);
   }
 }
 
@@ -209,11 +299,74 @@ KeyframeStore::InsertResult Mapper::addKeyframe(const Keyframe& keyframe) {
     }
   }
   if (result == KeyframeStore::InsertResult::kIgnored) return result;
-  if (!field_.initialized())
+  if (!field_.initialized()) {
     initializeField();  // allocates for every stored keyframe
-  else
-    allocateFor(keyframes_.entry(keyframes_.find(keyframe.keyframe_id)));
+  } else {
+    KeyframeEntry& entry = keyframes_.entry(keyframes_.find(keyframe.keyframe_id));
+    initExposure(&entry);  // before its own blocks and seeds change the field
+    allocateFor(entry);
+  }
   return result;
+}
+
+void Mapper::initExposure(KeyframeEntry* entry) const {
+  // The gain per channel from the field's render at the keyframe's pose to its image, over
+  // well-rendered pixels (weight > 0.9). Seeding then writes the
+  // keyframe's colours in the field's terms, so the field keeps one colour scale instead of
+  // absorbing each keyframe's exposure where it was seeded.
+  const int stride = params_.exposure_init_stride;
+  const int index = keyframes_.find(entry->keyframe.keyframe_id);
+  if (stride <= 0 || !params_.trainer.refine_exposure || index == keyframes_.gaugeIndex() ||
+      field_.empty())
+    return;
+  const Keyframe& kf = entry->keyframe;
+  const CameraModel& cam = kf.camera;
+  const MarchParams mp = marchParams();
+  std::vector<std::array<float, 6>> pairs;  // render RGB, image RGB
+  for (int y = stride / 2; y < cam.height; y += stride)
+    for (int x = stride / 2; x < cam.width; x += stride) {
+      if (!kf.dynamic_mask.empty() && kf.dynamic_mask.at<uint8_t>(y, x) != 0) continue;
+      const Ray ray = makeRay(entry->T_world_cam,
+                              Eigen::Vector3d((x - cam.cx) / cam.fx, (y - cam.cy) / cam.fy, 1.0));
+      const RayOutput r = renderer_.march(field_, ray, mp);
+      if (!(r.weight > 0.9f)) continue;
+      std::array<float, 6> p;
+      for (int j = 0; j < 3; ++j) p[j] = r.color[j];
+      if (kf.color.channels() == 3) {
+        const cv::Vec3b c = kf.color.at<cv::Vec3b>(y, x);
+        for (int j = 0; j < 3; ++j) p[3 + j] = c[2 - j] / 255.f;  // BGR
+      } else {
+        for (int j = 0; j < 3; ++j) p[3 + j] = kf.color.at<uint8_t>(y, x) / 255.f;
+      }
+      pairs.push_back(p);
+    }
+  constexpr size_t kMinPixels = 200;
+  if (pairs.size() < kMinPixels) return;
+  Vec6 x = Vec6::Zero();
+  for (int j = 0; j < 3; ++j) {
+    // Gain only, as the ratio of the means over pixels whose ratio is within a factor 1.5 of
+    // the median one: a regression slope would be biased low by the render's misalignment
+    // (regression dilution), an offset is left to training.
+    std::vector<float> ratios;
+    for (const auto& p : pairs)
+      if (p[j] > 0.05f) ratios.push_back(p[3 + j] / p[j]);
+    if (ratios.size() < kMinPixels) return;
+    std::nth_element(ratios.begin(), ratios.begin() + ratios.size() / 2, ratios.end());
+    const double median = ratios[ratios.size() / 2];
+    double sa = 0, sb = 0;
+    for (const auto& p : pairs) {
+      if (!(p[j] > 0.05f)) continue;
+      const double r = p[3 + j] / p[j];
+      if (r > median * 1.5 || r < median / 1.5) continue;
+      sa += p[j];
+      sb += p[3 + j];
+    }
+    const double gain = sb / sa;
+    // Auto exposure moves brightness by tens of percent between keyframes, not by factors.
+    if (!(gain > 0.5 && gain < 2)) return;
+    x[j] = std::log(gain);
+  }
+  entry->exposure = x;
 }
 
 void Mapper::reset() {

@@ -34,12 +34,22 @@ struct MapperParams {
   /// Newly allocated fine voxels at a keyframe's depth start opaque (this raw density) with
   /// the pixel's colour, so training starts from the depth prior instead of fog; 0 = off.
   double seed_density = 8;
+  /// Lattice points of those blocks that the keyframe's measured depth sees through (in front
+  /// of the surface, beyond the seeded colour band) start at this raw density; 0 = off. The
+  /// default density (density_bias: 0.01 per fine voxel) in the allocated space in front of
+  /// the surfaces (bands up to 3 x 16 voxels deep for far, noisy depths, and whole 8-voxel
+  /// blocks) put much of the render weight in front of the surface (fr1/rpy, one keyframe at
+  /// its own pose: depth L1 14 cm before training; 4 cm with -4).
+  double seed_free_density = -4;
   /// Pixels without depth (sensor holes: beyond range, dark or specular surfaces) get the
   /// depth of their nearest surroundings with infinite variance: no depth loss, but the field is
   /// allocated there (within alloc_hole_sigmas of the widest sampling sigma) and training
   /// samples go there, so their colour is learnt instead of staying background. false = holes
   /// stay unallocated.
   bool fill_depth_holes = true;
+  /// A new keyframe's exposure starts from an affine fit of its image to the field's render at
+  /// its pose, on every n-th pixel in x and y (0 = start at zero).
+  int exposure_init_stride = 4;
   float alloc_hole_sigmas = 1;
   TrainerParams trainer;
   // Render-only path (renders of keyframes, the renderer process).
@@ -104,6 +114,7 @@ class Mapper {
   void initializeField();
   void allocateFor(const KeyframeEntry& entry);
   void seedSurface(const KeyframeEntry& entry, int first_new_block);
+  void initExposure(KeyframeEntry* entry) const;
 
   MapperParams params_;
   Field field_;

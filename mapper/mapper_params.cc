@@ -41,7 +41,9 @@ MapperNodeParams loadMapperParams(const std::string& yaml_path,
   r.get("max_fine_blocks", &c.max_fine_blocks);
   getFloat(r, "alloc_max_depth_ratio", &c.alloc_max_depth_ratio);
   r.get("seed_density", &c.seed_density);
+  r.get("seed_free_density", &c.seed_free_density);
   r.get("fill_depth_holes", &c.fill_depth_holes);
+  r.get("exposure_init_stride", &c.exposure_init_stride);
   getFloat(r, "alloc_hole_sigmas", &c.alloc_hole_sigmas);
   // Training.
   TrainerParams& t = c.trainer;
@@ -75,6 +77,9 @@ MapperNodeParams loadMapperParams(const std::string& yaml_path,
   getFloat(r, "pose_lr_trans_voxels", &t.pose_lr_trans_voxels);
   getInt64(r, "pose_warmup_rays", &t.pose_warmup_rays);
   getFloat(r, "pose_depth_weight", &t.pose_depth_weight);
+  r.get("refine_exposure", &t.refine_exposure);
+  getFloat(r, "exposure_lr", &t.exposure_lr);
+  getInt64(r, "exposure_warmup_rays", &t.exposure_warmup_rays);
   getFloat(r, "recency_boost", &t.recency_boost);
   getFloat(r, "recency_rays", &t.recency_rays);
   getFloat(r, "loss_boost", &t.loss_boost);

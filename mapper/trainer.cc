@@ -41,6 +41,8 @@ struct Trainer::KeyframeView {
   const int32_t* pixels;
   uint32_t num_pixels;
   bool refine_pose;
+  float gain[3], offset[3];  // exposure (applyExposure)
+  bool refine_exposure;
 };
 
 struct Trainer::ThreadState {
@@ -48,7 +50,8 @@ struct Trainer::ThreadState {
   RayWorkspace ws;
   Rng rng;
   std::vector<float> t, delta;
-  std::vector<Vec6> pose_grad;  // per keyframe
+  std::vector<Vec6> pose_grad;      // per keyframe
+  std::vector<Vec6> exposure_grad;  // per keyframe
   std::vector<int> kf_rays;
   std::vector<double> kf_loss;
   double loss_rgb = 0, loss_depth = 0;
@@ -95,12 +98,37 @@ SamplingParams Trainer::samplingFor(double fine_voxel_size) const {
   return sp;
 }
 
+void applyExposure(const Vec6& x, cv::Mat* rgb) {
+  CV_Assert(rgb->type() == CV_32FC3);
+  float gain[3], offset[3];
+  for (int j = 0; j < 3; ++j) {
+    gain[j] = static_cast<float>(std::exp(x[j]));
+    offset[j] = static_cast<float>(x[3 + j]);
+  }
+  for (int y = 0; y < rgb->rows; ++y) {
+    cv::Vec3f* row = rgb->ptr<cv::Vec3f>(y);
+    for (int x0 = 0; x0 < rgb->cols; ++x0) {
+      float out[3];
+      applyExposure(gain, offset, &row[x0][0], out);
+      row[x0] = cv::Vec3f(out[0], out[1], out[2]);
+    }
+  }
+}
+
+Vec6 interpolateExposure(double t, double t_a, const Vec6& x_a, double t_b, const Vec6& x_b) {
+  if (t <= t_a || !(t_b > t_a)) return x_a;
+  if (t >= t_b) return x_b;
+  const double s = (t - t_a) / (t_b - t_a);
+  return (1 - s) * x_a + s * x_b;
+}
+
 void Trainer::traceRays(const Field& field, const KeyframeStore& keyframes, ThreadState* ts,
                         int count) {
   const VolumeRenderer renderer;
   const SamplingParams sp = samplingFor(field.geometry().fineVoxelSize());
   const int nk = keyframes.size();
   ts->pose_grad.assign(nk, Vec6::Zero());
+  ts->exposure_grad.assign(nk, Vec6::Zero());
   ts->kf_rays.assign(nk, 0);
   ts->kf_loss.assign(nk, 0.0);
   ts->loss_rgb = ts->loss_depth = 0;
@@ -164,11 +192,15 @@ void Trainer::traceRay(const Field& field, const VolumeRenderer& renderer, const
   const RayOutput out = renderer.forward(field, ray, ts->t.data(), ts->delta.data(), n, &ts->ws);
   RayOutputGrad g;
   double loss_rgb = 0, loss_depth = 0;
+  float seen[3], g_seen[3];
+  applyExposure(kv.gain, kv.offset, out.color, seen);
   for (int ch = 0; ch < 3; ++ch) {
-    const float e = out.color[ch] - target[ch];
+    const float e = seen[ch] - target[ch];
     loss_rgb += e * e;
-    g.color[ch] = 2 * e;
+    g_seen[ch] = 2 * e;
   }
+  exposureBackward(kv.gain, out.color, g_seen, g.color,
+                   kv.refine_exposure ? &ts->exposure_grad[k] : nullptr);
   // Infinite variance marks a depth that is no measurement (a filled hole): sampling only.
   if (depth > 0 && std::isfinite(var) && params_.depth_loss != DepthLoss::kNone) {
     const float sigma2 = params_.depth_loss == DepthLoss::kRaw ? raw_var : std::max(var, min_var);
@@ -256,6 +288,12 @@ TrainStats Trainer::step(Field* field, KeyframeStore* keyframes) {
     v.num_pixels = static_cast<uint32_t>(e.pixels.size());
     v.refine_pose =
         params_.refine_poses && i != gauge_ && e.rays_trained >= params_.pose_warmup_rays;
+    v.refine_exposure =
+        params_.refine_exposure && i != gauge_ && e.rays_trained >= params_.exposure_warmup_rays;
+    for (int j = 0; j < 3; ++j) {
+      v.gain[j] = static_cast<float>(std::exp(e.exposure[j]));
+      v.offset[j] = static_cast<float>(e.exposure[3 + j]);
+    }
   }
 
   // Rays, split over threads; each thread has its own gradient buffers and random stream.
@@ -303,7 +341,7 @@ TrainStats Trainer::step(Field* field, KeyframeStore* keyframes) {
   // Statistics, per-keyframe running losses and ray counts.
   std::vector<double> kf_loss(nk, 0.0);
   std::vector<int> kf_rays(nk, 0);
-  std::vector<Vec6> pose_grad(nk, Vec6::Zero());
+  std::vector<Vec6> pose_grad(nk, Vec6::Zero()), exposure_grad(nk, Vec6::Zero());
   for (const ThreadState& ts : threads_) {
     stats.rays += ts.rays;
     stats.samples += ts.samples;
@@ -313,6 +351,7 @@ TrainStats Trainer::step(Field* field, KeyframeStore* keyframes) {
       kf_loss[i] += ts.kf_loss[i];
       kf_rays[i] += ts.kf_rays[i];
       pose_grad[i] += ts.pose_grad[i];
+      exposure_grad[i] += ts.exposure_grad[i];
     }
   }
   if (stats.rays > 0) {
@@ -326,10 +365,22 @@ TrainStats Trainer::step(Field* field, KeyframeStore* keyframes) {
     const double loss = kf_loss[i] / kf_rays[i];
     e.loss_ema = e.loss_ema > 0 ? 0.9 * e.loss_ema + 0.1 * loss : loss;
     e.rays_trained += kf_rays[i];
+    constexpr double b1 = 0.9, b2 = 0.99, eps = 1e-12;
+    if (views_[i].refine_exposure) {
+      // Adam on the exposure, on the mean gradient over this keyframe's rays.
+      const Vec6 g = exposure_grad[i] / kf_rays[i];
+      e.exposure_m = b1 * e.exposure_m + (1 - b1) * g;
+      e.exposure_v = b2 * e.exposure_v + (1 - b2) * g.cwiseProduct(g);
+      ++e.exposure_steps;
+      const double c1 = 1.0 / (1.0 - std::pow(b1, double(e.exposure_steps)));
+      const double c2 = 1.0 / (1.0 - std::pow(b2, double(e.exposure_steps)));
+      for (int j = 0; j < 6; ++j)
+        e.exposure[j] -=
+            params_.exposure_lr * (e.exposure_m[j] * c1) / (std::sqrt(e.exposure_v[j] * c2) + eps);
+    }
     if (!views_[i].refine_pose) continue;
     // Adam on the pose; the gradient is the mean over this keyframe's rays.
     const Vec6 g = pose_grad[i] / kf_rays[i];
-    constexpr double b1 = 0.9, b2 = 0.99, eps = 1e-12;
     e.pose_m = b1 * e.pose_m + (1 - b1) * g;
     e.pose_v = b2 * e.pose_v + (1 - b2) * g.cwiseProduct(g);
     ++e.pose_steps;

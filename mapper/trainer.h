@@ -54,11 +54,15 @@ struct TrainerParams {
   bool refine_poses = true;
   float pose_lr_rot = 2e-4f;           // rad per step
   float pose_lr_trans_voxels = 0.01f;  // fine voxels per step
-  int64_t pose_warmup_rays = 20000;    // rays of a keyframe before its pose moves
+  int64_t pose_warmup_rays = 5000;     // rays of a keyframe before its pose moves
   /// Weight of the depth term in the pose gradient. The keyframe depths come from the same
   /// bundle adjustment as the poses, and depth residuals are biased by the field's surface
   /// quadrature (a fraction of a voxel), so the photometric term alone drives poses by default.
   float pose_depth_weight = 0;
+  // Exposure: per-keyframe affine colour (applyExposure), Adam on its mean gradient per step.
+  bool refine_exposure = true;
+  float exposure_lr = 1e-3f;         // log gain and offset units per step
+  int64_t exposure_warmup_rays = 0;  // rays of a keyframe before its exposure moves
   // Keyframe choice: weight 1 + recency_boost exp(-rays / recency_rays)
   //                           + loss_boost (running loss / mean running loss).
   float recency_boost = 4;
@@ -75,6 +79,32 @@ struct TrainStats {
   int64_t voxels_updated = 0;
   int poses_refined = 0;
 };
+
+/// The colour keyframe k sees where the field renders c (RGB, [0, 1]): the camera's auto
+/// exposure and white balance as an affine map per channel,
+///   c'_j = exp(x_j) c_j + x_{3+j},   x = KeyframeEntry::exposure.
+/// Consecutive fr1/rpy keyframes differ by gains of 0.86..1.18 and offsets up to 0.1, which
+/// one field cannot fit without it.
+inline void applyExposure(const float gain[3], const float offset[3], const float c[3],
+                          float out[3]) {
+  for (int j = 0; j < 3; ++j) out[j] = gain[j] * c[j] + offset[j];
+}
+/// Backward of applyExposure: given g_out = d loss / d c', sets g_c = d loss / d c and adds
+/// d loss / d x to *g_x when not null (gain = exp(x_j), so d c'_j / d x_j = gain_j c_j).
+inline void exposureBackward(const float gain[3], const float c[3], const float g_out[3],
+                             float g_c[3], Vec6* g_x) {
+  for (int j = 0; j < 3; ++j) g_c[j] = g_out[j] * gain[j];
+  if (!g_x) return;
+  for (int j = 0; j < 3; ++j) {
+    (*g_x)[j] += g_out[j] * gain[j] * c[j];
+    (*g_x)[3 + j] += g_out[j];
+  }
+}
+/// A render's colour (CV_32FC3 RGB) as seen under exposure x, in place.
+void applyExposure(const Vec6& x, cv::Mat* rgb);
+/// Exposure of a frame at time t (any unit) between keyframes at times t_a <= t <= t_b: linear
+/// interpolation of x (auto exposure drifts smoothly), the nearest one outside.
+Vec6 interpolateExposure(double t, double t_a, const Vec6& x_a, double t_b, const Vec6& x_b);
 
 class Trainer {
  public:

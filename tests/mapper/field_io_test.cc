@@ -200,6 +200,7 @@ TEST(Checkpoint, RoundTripIsExactAndResumesIdentically) {
   for (int i = 0; i < 3; ++i) a.addKeyframe(keyframeOf(scene, i * 10, i));
   a.train(8);
   ASSERT_FALSE(a.takeRefinedPoses().empty());  // poses have moved: they must round-trip
+  ASSERT_NE(a.keyframes().entry(1).exposure, Vec6::Zero());  // and so have the exposures
   a.train(1);
   const std::string path = tempPath("mapper_checkpoint.bin");
   a.saveCheckpoint(path);
@@ -217,6 +218,10 @@ TEST(Checkpoint, RoundTripIsExactAndResumesIdentically) {
     EXPECT_EQ(eb.pose_m, ea.pose_m);
     EXPECT_EQ(eb.pose_v, ea.pose_v);
     EXPECT_EQ(eb.pose_steps, ea.pose_steps);
+    EXPECT_EQ(eb.exposure, ea.exposure);
+    EXPECT_EQ(eb.exposure_m, ea.exposure_m);
+    EXPECT_EQ(eb.exposure_v, ea.exposure_v);
+    EXPECT_EQ(eb.exposure_steps, ea.exposure_steps);
     EXPECT_EQ(eb.loss_ema, ea.loss_ema);
     EXPECT_EQ(eb.rays_trained, ea.rays_trained);
     EXPECT_EQ(eb.keyframe.version, ea.keyframe.version);
