@@ -324,7 +324,7 @@ int runPipeline(const std::vector<std::string>& scenes, int frames, int width, d
   }
   std::printf(
       "dyn: moving-object pixels kept out of camera tracking, objects tracked; no dyn: every "
-      "pixel drives the camera;\nfrozen: the same scene with the objects at their first pose; "
+      "pixel drives the camera;\nfrozen: the same scene with the objects at their last pose; "
       "ratio = dyn / frozen. Object errors in the object frame\n(E = T_o^-1 M_gt^-1 M_est T_o), "
       "tracker world mapped to the ground truth's by the first camera pose.\n");
   return 0;

@@ -151,7 +151,8 @@ Correspondences flowToCorrespondences(const cv::Mat& grey_a, const cv::Mat& grey
 Correspondences flowToCorrespondences(const cv::Mat& grey_a, const cv::Mat& grey_b,
                                       const cv::Mat& flow_ab, const cv::Mat& flow_ba,
                                       const cv::Mat& structure_a, const GridGeometry& geometry,
-                                      const FlowOptions& options) {
+                                      const FlowOptions& options, const cv::Mat& moving_a,
+                                      const cv::Mat& moving_b) {
   const cv::Size work = geometry.workingSize();
   const cv::Size grid = geometry.gridSize();
   const int c = geometry.cell;
@@ -160,6 +161,8 @@ Correspondences flowToCorrespondences(const cv::Mat& grey_a, const cv::Mat& grey
   CV_Assert(flow_ab.type() == CV_32FC2 && flow_ab.size() == work);
   CV_Assert(flow_ba.empty() || (flow_ba.type() == CV_32FC2 && flow_ba.size() == work));
   CV_Assert(structure_a.type() == CV_32FC3 && structure_a.size() == grid);
+  CV_Assert(moving_a.empty() || (moving_a.type() == CV_8UC1 && moving_a.size() == work));
+  CV_Assert(moving_b.empty() || (moving_b.type() == CV_8UC1 && moving_b.size() == work));
 
   // Per-cell statistics from every other pixel of every other row (16 of a cell's 64): the
   // photometric residual after warping b onto a, the forward-backward error and the pixels
@@ -173,12 +176,18 @@ Correspondences flowToCorrespondences(const cv::Mat& grey_a, const cv::Mat& grey
   for (int y = 0; y < work.height; y += kSampleStride) {
     const cv::Vec2f* f = flow_ab.ptr<cv::Vec2f>(y);
     const uint8_t* ia = grey_a.ptr<uint8_t>(y);
+    const uint8_t* ma = moving_a.empty() ? nullptr : moving_a.ptr<uint8_t>(y);
     const int row = (y / c) * grid.width;
     for (int x = 0; x < work.width; x += kSampleStride) {
+      if (ma && ma[x]) continue;  // moving objects say nothing of the camera
       const int k = row + x / c;
       n_all[k] += 1;
       const float xb = x + f[x][0], yb = y + f[x][1];
       if (!(xb >= -0.5f && yb >= -0.5f && xb <= x_hi && yb <= y_hi)) continue;  // NaN: out
+      if (!moving_b.empty() && moving_b.at<uint8_t>(std::min(static_cast<int>(yb + 0.5f), hmax),
+                                                    std::min(static_cast<int>(xb + 0.5f), wmax))) {
+        continue;  // lands on a moving object in b: counts as not matched
+      }
       // Bilinear sample at (xb, yb), clamped to the border.
       const float xc = std::min(std::max(xb, 0.0f), static_cast<float>(wmax));
       const float yc = std::min(std::max(yb, 0.0f), static_cast<float>(hmax));
@@ -204,8 +213,19 @@ Correspondences flowToCorrespondences(const cv::Mat& grey_a, const cv::Mat& grey
       }
     }
   }
-  cv::Mat m_flow;  // INTER_AREA averages exactly the cell's pixels
-  cv::resize(flow_ab, m_flow, grid, 0, 0, cv::INTER_AREA);
+  // The cell's mean flow: INTER_AREA averages exactly its pixels (its static ones, with a mask).
+  cv::Mat m_flow, static_fraction;
+  if (moving_a.empty()) {
+    cv::resize(flow_ab, m_flow, grid, 0, 0, cv::INTER_AREA);
+  } else {
+    cv::Mat is_static, static2, masked_flow;
+    cv::compare(moving_a, 0, is_static, cv::CMP_EQ);
+    is_static.convertTo(is_static, CV_32F, 1.0 / 255);
+    cv::merge(std::vector<cv::Mat>{is_static, is_static}, static2);
+    cv::multiply(flow_ab, static2, masked_flow);
+    cv::resize(masked_flow, m_flow, grid, 0, 0, cv::INTER_AREA);
+    cv::resize(is_static, static_fraction, grid, 0, 0, cv::INTER_AREA);
+  }
 
   Correspondences out;
   out.target.create(grid, CV_32FC2);
@@ -218,19 +238,23 @@ Correspondences flowToCorrespondences(const cv::Mat& grey_a, const cv::Mat& grey
     cv::Vec2f* t = out.target.ptr<cv::Vec2f>(v);
     cv::Vec2f* w = out.weight.ptr<cv::Vec2f>(v);
     const cv::Vec2f* mf = m_flow.ptr<cv::Vec2f>(v);
+    const float* sf = static_fraction.empty() ? nullptr : static_fraction.ptr<float>(v);
     for (int u = 0; u < grid.width; ++u) {
       w[u] = cv::Vec2f(0, 0);
       const int k = v * grid.width + u;
+      // With a mask, a cell needs most of its pixels static; its flow is theirs.
+      const double static_share = sf ? sf[u] : 1.0;
       const double frac_in = n_all[k] > 0 ? n_in[k] / n_all[k] : 0;
-      const double tu = u + mf[u][0] / c;
-      const double tv = v + mf[u][1] / c;
+      const double none = std::numeric_limits<double>::quiet_NaN();
+      const double tu = u + (static_share > 0 ? mf[u][0] / static_share : none) / c;
+      const double tv = v + (static_share > 0 ? mf[u][1] / static_share : none) / c;
       // A cell counts only when its mean flow is finite and most of its pixels land inside b.
       if (!std::isfinite(tu) || !std::isfinite(tv)) {
         t[u] = cv::Vec2f(nan, nan);
         continue;
       }
       t[u] = cv::Vec2f(static_cast<float>(tu), static_cast<float>(tv));
-      if (frac_in < 0.5 || tu < -0.5 || tv < -0.5 || tu > grid.width - 0.5 ||
+      if (static_share < 0.5 || frac_in < 0.5 || tu < -0.5 || tv < -0.5 || tu > grid.width - 0.5 ||
           tv > grid.height - 0.5) {
         continue;
       }
@@ -260,40 +284,6 @@ Correspondences flowToCorrespondences(const cv::Mat& grey_a, const cv::Mat& grey
     out.median_fb_px = fb_valid[mid];
   }
   return out;
-}
-
-cv::Mat gridMovingMask(const cv::Mat& moving, const GridGeometry& geometry) {
-  if (moving.empty()) return {};
-  // INTER_AREA averages each cell's pixels: one moving pixel of 64 still averages above 0.
-  cv::Mat area;
-  cv::resize(moving, area, geometry.gridSize(), 0, 0, cv::INTER_AREA);
-  return area > 0;
-}
-
-void excludeMoving(const cv::Mat& moving_grid_a, const cv::Mat& moving_grid_b, Correspondences* c) {
-  if (moving_grid_a.empty() && moving_grid_b.empty()) return;
-  int valid = 0;
-  for (int v = 0; v < c->weight.rows; ++v) {
-    cv::Vec2f* w = c->weight.ptr<cv::Vec2f>(v);
-    const cv::Vec2f* t = c->target.ptr<cv::Vec2f>(v);
-    for (int u = 0; u < c->weight.cols; ++u) {
-      if (!(w[u][0] > 0 || w[u][1] > 0)) continue;
-      bool moving = !moving_grid_a.empty() && moving_grid_a.at<uint8_t>(v, u);
-      if (!moving && !moving_grid_b.empty() && std::isfinite(t[u][0]) && std::isfinite(t[u][1])) {
-        const int ub = static_cast<int>(std::lround(t[u][0]));
-        const int vb = static_cast<int>(std::lround(t[u][1]));
-        moving = ub >= 0 && vb >= 0 && ub < moving_grid_b.cols && vb < moving_grid_b.rows &&
-                 moving_grid_b.at<uint8_t>(vb, ub);
-      }
-      if (moving) {
-        w[u] = cv::Vec2f(0, 0);
-      } else {
-        ++valid;
-      }
-    }
-  }
-  const int cells = c->weight.rows * c->weight.cols;
-  c->valid_fraction = cells > 0 ? static_cast<double>(valid) / cells : 0;
 }
 
 }  // namespace radslam

@@ -123,20 +123,15 @@ Correspondences flowToCorrespondences(const cv::Mat& grey_a, const cv::Mat& grey
 /// the image only (cache it per keyframe).
 cv::Mat cellStructureTensor(const cv::Mat& gradients, int cell);
 
-/// As flowToCorrespondences with the structure tensor of a precomputed.
+/// As flowToCorrespondences with the structure tensor of a precomputed, and optional masks of
+/// moving objects (CV_8UC1 working size, non-zero = moving; empty = none) that keep them out
+/// of camera tracking: a's moving pixels are left out of each cell's flow and statistics (a
+/// cell needs half of its pixels static), and a pixel whose match lands on a moving pixel of b
+/// counts as unmatched.
 Correspondences flowToCorrespondences(const cv::Mat& grey_a, const cv::Mat& grey_b,
                                       const cv::Mat& flow_ab, const cv::Mat& flow_ba,
                                       const cv::Mat& structure_a, const GridGeometry& geometry,
-                                      const FlowOptions& options);
-
-/// Grid mask (CV_8UC1 grid size, 255 = excluded) of the cells holding any pixel of `moving`
-/// (CV_8UC1 working size, 255 = moving object); empty when `moving` is empty.
-cv::Mat gridMovingMask(const cv::Mat& moving, const GridGeometry& geometry);
-
-/// Keeps moving objects out of camera tracking: zeroes the weight of the correspondences whose
-/// cell is moving in a, or whose target lands in a moving cell of b, and updates
-/// valid_fraction. Either grid mask may be empty (nothing moving).
-void excludeMoving(const cv::Mat& moving_grid_a, const cv::Mat& moving_grid_b,
-                   Correspondences* correspondences);
+                                      const FlowOptions& options, const cv::Mat& moving_a = {},
+                                      const cv::Mat& moving_b = {});
 
 }  // namespace radslam

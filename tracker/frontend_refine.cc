@@ -20,19 +20,21 @@ cv::Mat imageGradients(const cv::Mat& grey) {
 }
 
 int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::Mat& grey_b,
-                  int cell, const RefineOptions& options, cv::Mat* target, cv::Mat* weight) {
+                  int cell, const RefineOptions& options, cv::Mat* target, cv::Mat* weight,
+                  const cv::Mat& moving_a) {
   CV_Assert(grey_a.type() == CV_8UC1 && grey_b.type() == CV_8UC1 &&
             grey_a.size() == grey_b.size() && gradients_a.type() == CV_32FC2 &&
             gradients_a.size() == grey_a.size() && cell >= 1);
   CV_Assert(target && target->type() == CV_32FC2 && target->cols * cell == grey_a.cols &&
             target->rows * cell == grey_a.rows && weight && weight->type() == CV_32FC2 &&
             weight->size() == target->size());
+  CV_Assert(moving_a.empty() || (moving_a.type() == CV_8UC1 && moving_a.size() == grey_a.size()));
   const int W = grey_a.cols, H = grey_a.rows;
   const float max_shift2 = static_cast<float>(options.max_shift_px * options.max_shift_px);
   const int m = options.margin;
   const int side = cell + 2 * m;
   const int n = side * side;
-  std::vector<float> ia(n), gxs(n), gys(n);
+  std::vector<float> ia(n), gxs(n), gys(n), used(n);
   const bool offset = options.brightness_offset;
   int refined = 0;
   for (int v = 0; v < target->rows; ++v) {
@@ -43,7 +45,7 @@ int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::M
         continue;
       }
       // The cell's pixels, gradients and the constant Hessian of (dx, dy, offset).
-      float sxx = 0, sxy = 0, syy = 0, sx = 0, sy = 0;
+      float sxx = 0, sxy = 0, syy = 0, sx = 0, sy = 0, n_used = 0;
       int k = 0;
       const int xa = u * cell - m, ya = v * cell - m;  // window corner in a
       if (xa < 0 || ya < 0 || xa + side > W || ya + side > H) {
@@ -53,19 +55,23 @@ int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::M
       for (int j = 0; j < side; ++j) {
         const uint8_t* ra = grey_a.ptr<uint8_t>(ya + j) + xa;
         const cv::Vec2f* rg = gradients_a.ptr<cv::Vec2f>(ya + j) + xa;
+        const uint8_t* rm = moving_a.empty() ? nullptr : moving_a.ptr<uint8_t>(ya + j) + xa;
         for (int i = 0; i < side; ++i, ++k) {
+          // Pixels of moving objects take no part (zero gradient, no offset term).
+          used[k] = rm && rm[i] ? 0.f : 1.f;
+          n_used += used[k];
           ia[k] = ra[i];
-          gxs[k] = rg[i][0];
-          gys[k] = rg[i][1];
-          sxx += rg[i][0] * rg[i][0];
-          sxy += rg[i][0] * rg[i][1];
-          syy += rg[i][1] * rg[i][1];
-          sx += rg[i][0];
-          sy += rg[i][1];
+          gxs[k] = used[k] * rg[i][0];
+          gys[k] = used[k] * rg[i][1];
+          sxx += gxs[k] * gxs[k];
+          sxy += gxs[k] * gys[k];
+          syy += gys[k] * gys[k];
+          sx += gxs[k];
+          sy += gys[k];
         }
       }
       Eigen::Matrix3d Hm;
-      Hm << sxx, sxy, sx, sxy, syy, sy, sx, sy, n;
+      Hm << sxx, sxy, sx, sxy, syy, sy, sx, sy, n_used;
       if (!offset) {
         Hm.row(2).setZero();
         Hm.col(2).setZero();
@@ -101,7 +107,7 @@ int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::M
             const float r = w00 * r0[i] + w01 * r0[i + 1] + w10 * r1[i] + w11 * r1[i + 1] - ia[k];
             b0 += gxs[k] * r;
             b1 += gys[k] * r;
-            b2 += r;
+            b2 += used[k] * r;
           }
         }
         if (!offset) b2 = 0;

@@ -36,7 +36,10 @@ cv::Mat imageGradients(const cv::Mat& grey);
 /// singular or which moves more than max_shift_px keeps its target and, with reject_failures,
 /// gets weight 0 (its correspondence is not reliable). grey_a, grey_b: CV_8UC1 of one size,
 /// cell x the grid size; gradients_a from imageGradients(grey_a). Returns the cells refined.
+/// moving_a (CV_8UC1 of a's size, non-zero = moving object; empty = none): pixels left out of
+/// the cells' windows.
 int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::Mat& grey_b,
-                  int cell, const RefineOptions& options, cv::Mat* target, cv::Mat* weight);
+                  int cell, const RefineOptions& options, cv::Mat* target, cv::Mat* weight,
+                  const cv::Mat& moving_a = {});
 
 }  // namespace radslam

@@ -88,11 +88,11 @@ struct Tracker::Impl {
   PoseStamped poseMessage(const FrameRecord& r) const;
 
   /// Grid correspondences a -> b from the flows (confidence from both), refined per cell.
-  /// Cells on moving objects (grid masks, may be empty) get no weight.
+  /// Pixels of moving objects (working-size masks, may be empty) are left out.
   Correspondences correspond(const cv::Mat& grey_a, const cv::Mat& gradients_a,
                              const cv::Mat& structure_a, const cv::Mat& grey_b,
                              const cv::Mat& flow_ab, const cv::Mat& flow_ba,
-                             const cv::Mat& moving_grid_a, const cv::Mat& moving_grid_b) const;
+                             const cv::Mat& moving_a, const cv::Mat& moving_b) const;
 
   // Keyframe pairs, BA and output.
   /// Flow a -> b and b -> a warm-started from the current estimate, as correspondences.
@@ -149,10 +149,10 @@ struct Tracker::Impl {
   };
   std::vector<PendingFrame> pending_frames;
   /// Moving objects: null until the first frame (it needs the working camera) or when
-  /// dynamic_objects is off. moving / moving_grid: the frame being processed (empty: nothing
-  /// moves).
+  /// dynamic_objects is off. moving: the frame's mask (working size, 255 = moving object;
+  /// empty: nothing moves).
   std::unique_ptr<ObjectTracker> objects;
-  cv::Mat moving, moving_grid;
+  cv::Mat moving;
   /// The frame's objects from its depth (sensor or stereo) and its final pose.
   ObjectList trackObjects(const Frame& frame, const PreparedImage& image, const SE3& T_world_cam);
   /// Aligns the pending frames again; with `leaving`, only those of these keyframes, which are
@@ -270,7 +270,6 @@ TrackerOutput Tracker::process(const Frame& frame) {
   }
   if (mode_ == TrackerMode::kStereo && s.baseline_m == 0) s.baseline_m = frame.baseline_m;
   s.moving = s.objects ? s.objects->movingMask(image.instance, image.class_id) : cv::Mat();
-  s.moving_grid = gridMovingMask(s.moving, s.preparer->geometry());
 
   TrackerOutput out;
   s.stats.ba_ms = 0;
@@ -359,7 +358,6 @@ KeyframeData Tracker::Impl::newKeyframeData(const Frame& frame, const PreparedIm
   kf.structure = cellStructureTensor(kf.gradients, g.cell);
   kf.right_grey = image.right_grey;
   kf.moving = moving;
-  kf.moving_grid = moving_grid;
   kf.ba.T_world_cam = T_world_cam;
   if (mode == TrackerMode::kRgbd) {
     const cv::Mat z = sensorDepthToGrid(image.depth, g.cell, p.depth_min_cell_fraction,
@@ -393,7 +391,7 @@ void Tracker::Impl::track(const Frame& frame, const PreparedImage& image, Tracke
   tracked.forward = forward;
   tracked.backward = backward;
   tracked.correspondences = correspond(ref.grey, ref.gradients, ref.structure, image.grey, forward,
-                                       backward, ref.moving_grid, moving_grid);
+                                       backward, ref.moving, moving);
   const Correspondences& c = tracked.correspondences;
   stats.flow_ms += msSince(t_flow);
   stats.valid_fraction = c.valid_fraction;
@@ -608,7 +606,7 @@ void Tracker::Impl::makeKeyframe(const Frame& frame, const PreparedImage& image,
         const KeyframeData& ref = graph.keyframe(m);
         const Correspondences back =
             correspond(k.grey, k.gradients, k.structure, ref.grey, tracked->backward,
-                       tracked->forward, k.moving_grid, ref.moving_grid);
+                       tracked->forward, k.moving, ref.moving);
         graph.setEdge(GraphEdge{m, id, tracked->correspondences.target,
                                 tracked->correspondences.weight, std::nullopt});
         graph.setEdge(GraphEdge{id, m, back.target, back.weight, std::nullopt});
@@ -648,15 +646,14 @@ void Tracker::Impl::makeKeyframe(const Frame& frame, const PreparedImage& image,
 Correspondences Tracker::Impl::correspond(const cv::Mat& grey_a, const cv::Mat& gradients_a,
                                           const cv::Mat& structure_a, const cv::Mat& grey_b,
                                           const cv::Mat& flow_ab, const cv::Mat& flow_ba,
-                                          const cv::Mat& moving_grid_a,
-                                          const cv::Mat& moving_grid_b) const {
+                                          const cv::Mat& moving_a, const cv::Mat& moving_b) const {
   const GridGeometry& g = preparer->geometry();
-  Correspondences c =
-      flowToCorrespondences(grey_a, grey_b, flow_ab, flow_ba, structure_a, g, flow_options);
+  Correspondences c = flowToCorrespondences(grey_a, grey_b, flow_ab, flow_ba, structure_a, g,
+                                            flow_options, moving_a, moving_b);
   if (p.refine_iterations > 0) {
-    refineTargets(grey_a, gradients_a, grey_b, g.cell, refine_options, &c.target, &c.weight);
+    refineTargets(grey_a, gradients_a, grey_b, g.cell, refine_options, &c.target, &c.weight,
+                  moving_a);
   }
-  excludeMoving(moving_grid_a, moving_grid_b, &c);
   return c;
 }
 
@@ -675,10 +672,9 @@ std::pair<Correspondences, Correspondences> Tracker::Impl::measureBothWays(int a
   auto gradients = [](const KeyframeData& k) {
     return k.gradients.empty() ? imageGradients(k.grey) : k.gradients;
   };
-  return {correspond(ka.grey, gradients(ka), ka.structure, kb.grey, f_ab, f_ba, ka.moving_grid,
-                     kb.moving_grid),
-          correspond(kb.grey, gradients(kb), kb.structure, ka.grey, f_ba, f_ab, kb.moving_grid,
-                     ka.moving_grid)};
+  return {
+      correspond(ka.grey, gradients(ka), ka.structure, kb.grey, f_ab, f_ba, ka.moving, kb.moving),
+      correspond(kb.grey, gradients(kb), kb.structure, ka.grey, f_ba, f_ab, kb.moving, ka.moving)};
 }
 
 void Tracker::Impl::measurePair(int a, int b, WarmStart warm_start) {
@@ -712,8 +708,8 @@ void Tracker::Impl::measureStereo(int id, WarmStart warm_start) {
   const cv::Mat f_rl =
       flow.compute(k.right_grey, k.grey, init.empty() ? cv::Mat() : cv::Mat(-init), warm_start);
   // The right image's objects are where the left one's are, give or take the disparity.
-  const Correspondences c = correspond(k.grey, k.gradients, k.structure, k.right_grey, f_lr, f_rl,
-                                       k.moving_grid, k.moving_grid);
+  const Correspondences c =
+      correspond(k.grey, k.gradients, k.structure, k.right_grey, f_lr, f_rl, k.moving, k.moving);
   graph.setEdge(GraphEdge{id, -1, c.target, c.weight, T_left_right});
   // Kept with the keyframe for global BA (the window's edge goes when the keyframe leaves).
   KeyframeData& kept = graph.keyframe(id);

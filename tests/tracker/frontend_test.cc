@@ -484,5 +484,45 @@ TEST(Flow, WarpedWarmStartKeepsTheNearGroundFlow) {
   EXPECT_LT(std::abs(s_warp - 1.0), std::abs(s_coarse - 1.0));
 }
 
+// A uniform shift of a textured image with a moving patch: cells mostly on the patch, and
+// cells whose pixels land on it in b, get no weight; a cell a quarter on the patch keeps its
+// weight and the flow of its static pixels.
+TEST(MovingMasks, KeepMovingPixelsOutOfTheCorrespondences) {
+  CameraModel working;
+  working.width = 64;
+  working.height = 32;
+  working.fx = working.fy = 40;
+  working.cx = 31.5;
+  working.cy = 15.5;
+  const GridGeometry g = makeGridGeometry(working, 8);
+  cv::Mat a(32, 64, CV_8UC1);
+  cv::randu(a, 0, 255);
+  cv::GaussianBlur(a, a, cv::Size(0, 0), 1.0);
+  cv::Mat b;
+  const cv::Mat shift = (cv::Mat_<double>(2, 3) << 1, 0, 8, 0, 1, 0);  // b = a moved 8 px right
+  cv::warpAffine(a, b, shift, a.size(), cv::INTER_LINEAR, cv::BORDER_REFLECT);
+  // The static scene's flow is +8 px; the patch's pixels flow elsewhere (-5 px).
+  cv::Mat flow(a.size(), CV_32FC2, cv::Scalar(8, 0));
+  cv::Mat moving_a(a.size(), CV_8UC1, cv::Scalar(0)), moving_b = moving_a.clone();
+  moving_a(cv::Rect(8, 8, 8, 8)).setTo(255);   // cell (1, 1)
+  moving_a(cv::Rect(24, 8, 2, 8)).setTo(255);  // a quarter of cell (3, 1)
+  flow.setTo(cv::Scalar(-5, 0), moving_a);
+  moving_b(cv::Rect(48, 16, 8, 8)).setTo(255);  // where cell (5, 2) lands in b
+  const FlowOptions options;
+  const Correspondences c =
+      flowToCorrespondences(a, b, flow, cv::Mat(), cellStructureTensor(imageGradients(a), 8), g,
+                            options, moving_a, moving_b);
+  auto weighted = [&](int u, int v) { return c.weight.at<cv::Vec2f>(v, u)[0] > 0; };
+  EXPECT_FALSE(weighted(1, 1));  // on the patch
+  EXPECT_FALSE(weighted(5, 2));  // lands on the patch in b
+  EXPECT_TRUE(weighted(4, 2));
+  ASSERT_TRUE(weighted(3, 1));  // a quarter moving: the static pixels' flow
+  EXPECT_NEAR(c.target.at<cv::Vec2f>(1, 3)[0], 3 + 1.0, 1e-4);
+  // Without masks the patch's wrong flow stays in.
+  const Correspondences unmasked = flowToCorrespondences(
+      a, b, flow, cv::Mat(), cellStructureTensor(imageGradients(a), 8), g, options);
+  EXPECT_NEAR(unmasked.target.at<cv::Vec2f>(1, 3)[0], 3 + (0.75 * 8 - 0.25 * 5) / 8, 1e-4);
+}
+
 }  // namespace
 }  // namespace radslam

@@ -40,43 +40,6 @@ TEST(DynamicClasses, RejectsBadItemsNamingThem) {
   }
 }
 
-TEST(ExcludeMoving, ZeroesCellsOnMovingObjectsAtEitherEnd) {
-  const cv::Size grid(4, 3);
-  Correspondences c;
-  c.target.create(grid, CV_32FC2);
-  c.weight = cv::Mat(grid, CV_32FC2, cv::Scalar(1, 1));
-  for (int v = 0; v < grid.height; ++v)
-    for (int u = 0; u < grid.width; ++u) c.target.at<cv::Vec2f>(v, u) = cv::Vec2f(u + 1, v);
-  cv::Mat moving_a(grid, CV_8UC1, cv::Scalar(0)), moving_b(grid, CV_8UC1, cv::Scalar(0));
-  moving_a.at<uint8_t>(0, 0) = 255;  // source cell (0, 0) moves
-  moving_b.at<uint8_t>(2, 3) = 255;  // (2, 2) lands on it in b
-  excludeMoving(moving_a, moving_b, &c);
-  for (int v = 0; v < grid.height; ++v) {
-    for (int u = 0; u < grid.width; ++u) {
-      const bool excluded = (v == 0 && u == 0) || (v == 2 && u == 2);
-      EXPECT_EQ(c.weight.at<cv::Vec2f>(v, u)[0] == 0, excluded) << u << "," << v;
-    }
-  }
-  EXPECT_NEAR(c.valid_fraction, 10.0 / 12.0, 1e-12);
-}
-
-TEST(GridMovingMask, MarksEveryCellTouchingAMovingPixel) {
-  CameraModel working;
-  working.width = 32;
-  working.height = 16;
-  working.fx = working.fy = 20;
-  working.cx = 15.5;
-  working.cy = 7.5;
-  const GridGeometry g = makeGridGeometry(working, 8);
-  cv::Mat moving(16, 32, CV_8UC1, cv::Scalar(0));
-  moving.at<uint8_t>(9, 17) = 255;  // one pixel of cell (2, 1)
-  const cv::Mat grid = gridMovingMask(moving, g);
-  ASSERT_EQ(grid.size(), cv::Size(4, 2));
-  EXPECT_EQ(cv::countNonZero(grid), 1);
-  EXPECT_EQ(grid.at<uint8_t>(1, 2), 255);
-  EXPECT_TRUE(gridMovingMask(cv::Mat(), g).empty());
-}
-
 // The door scene (a door turning on its hinge in a room) at 320x240 with sensor noise.
 struct DoorSequence {
   static constexpr int kFrames = 60;
