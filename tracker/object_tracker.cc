@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <set>
 #include <sstream>
 #include <stdexcept>
@@ -82,7 +83,11 @@ void checkMask(const cv::Mat& mask, const char* name, const CameraModel& camera)
 
 ObjectTracker::ObjectTracker(ObjectTrackerParams params, const CameraModel& camera,
                              const FlowOptions& flow_options)
-    : params_(std::move(params)), camera_(camera), flow_(flow_options) {
+    : params_(std::move(params)), camera_(camera), flow_([&] {
+        FlowOptions f = flow_options;
+        f.warp_smoothing_px = params_.flow_warp_smoothing_px;
+        return f;
+      }()) {
   validateCamera(camera_);
   if (params_.stride < 1 || params_.min_points < params_.tracking.min_points ||
       !(params_.max_depth_m > 0) || params_.hinge_min_motions < 2 ||
@@ -197,6 +202,8 @@ void ObjectTracker::updateObject(ObjectState* state, const DynamicClass& dc,
       trackObjectMotion(state->joint, camera_, previous_.T_world_cam, frame.T_world_cam,
                         correspondences, dt, params_.tracking, initial);
   applyObjectMotion(est, state->joint, &state->object);
+  state->last_motion_world = est.motion_world;
+  state->last_dt = dt;
   state->last_theta = est.theta;
   if (dc.joint == JointType::kRevolute && !state->joint_final) {
     // Free-tracked motions since the first frame give the hinge once they turn enough.
@@ -217,6 +224,50 @@ void ObjectTracker::updateObject(ObjectState* state, const DynamicClass& dc,
                      xi.tail<3>().norm() < params_.static_angular_speed;
   state->still_frames = still ? state->still_frames + 1 : 0;
   state->is_static = state->still_frames >= params_.static_frames;
+}
+
+cv::Mat ObjectTracker::flowPrediction(const ObjectFrame& frame, double dt) const {
+  const cv::Mat& depth = previous_.depth;
+  cv::Mat flow(depth.size(), CV_32FC2);
+  std::vector<float> fx, fy;
+  const SE3 T_cam_world = frame.T_world_cam.inverse();
+  constexpr float kNan = std::numeric_limits<float>::quiet_NaN();
+  for (int y = 0; y < depth.rows; ++y) {
+    const float* z = depth.ptr<float>(y);
+    const uint16_t* ids = previous_.instance.ptr<uint16_t>(y);
+    cv::Vec2f* f = flow.ptr<cv::Vec2f>(y);
+    for (int x = 0; x < depth.cols; ++x) {
+      f[x] = cv::Vec2f(kNan, kNan);
+      if (!(z[x] > 0)) continue;
+      Vec3 p = previous_.T_world_cam * unproject(camera_, Eigen::Vector2d(x, y), z[x]);
+      const auto it = objects_.find(ids[x]);
+      if (it != objects_.end() && it->second.last_dt > 0) {
+        // Constant velocity: the last motion scaled to this frame's interval.
+        const ObjectState& s = it->second;
+        p = SE3::exp(dt / s.last_dt * s.last_motion_world.log()) * p;
+      }
+      const Vec3 q = T_cam_world * p;
+      if (!(q.z() > 1e-6)) continue;
+      const Eigen::Vector2d px = project(camera_, q);
+      f[x] = cv::Vec2f(static_cast<float>(px.x() - x), static_cast<float>(px.y() - y));
+      fx.push_back(f[x][0]);
+      fy.push_back(f[x][1]);
+    }
+  }
+  // Pixels without depth take the median flow (the warp smooths the field anyway).
+  auto median = [](std::vector<float>& v) {
+    if (v.empty()) return 0.f;
+    std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+    return v[v.size() / 2];
+  };
+  const cv::Vec2f fill(median(fx), median(fy));
+  for (int y = 0; y < flow.rows; ++y) {
+    cv::Vec2f* f = flow.ptr<cv::Vec2f>(y);
+    for (int x = 0; x < flow.cols; ++x) {
+      if (!std::isfinite(f[x][0])) f[x] = fill;
+    }
+  }
+  return flow;
 }
 
 ObjectList ObjectTracker::track(const ObjectFrame& frame) {
@@ -248,7 +299,12 @@ ObjectList ObjectTracker::track(const ObjectFrame& frame) {
     auto it = objects_.find(id);
     if (it != objects_.end() && has_previous_ && dt > 0) {
       // Seen in the previous frame too: its displacement from the flow of its points.
-      if (flow.empty()) flow = flow_.compute(previous_.grey, frame.grey);
+      if (flow.empty()) {
+        // Warped by the predicted flow: the flow of a turning door or a near car varies fast
+        // across the object, and started coarse DIS measures it short.
+        flow =
+            flow_.compute(previous_.grey, frame.grey, flowPrediction(frame, dt), WarmStart::kWarp);
+      }
       std::vector<ObjectCorrespondence> c = objectCorrespondencesFromFlow(
           camera_, previous_.depth, previous_.instance, id, flow, params_.stride);
       // Points whose flow lands off the object (occlusion, flow bleeding over the silhouette)

@@ -44,7 +44,11 @@ std::vector<DynamicClass> parseDynamicClasses(const std::string& spec);
 
 struct ObjectTrackerParams {
   std::vector<DynamicClass> classes;
-  int stride = 2;                 // working px between the sample points of an object
+  int stride = 2;  // working px between the sample points of an object
+  // The flow for objects is warped by the prediction of each object's last motion, smoothed
+  // by this Gaussian sigma (working px): less than the camera's, as an object's flow differs
+  // from the background's right at its silhouette (12 px put 5 cm per frame on the cars).
+  double flow_warp_smoothing_px = 4;
   int min_points = 30;            // points an object needs to be tracked in a frame
   double max_depth_m = 30.0;      // farther depths are not used (noise grows with z^2)
   int hinge_min_motions = 5;      // tracked frames before a hinge is estimated
@@ -93,6 +97,8 @@ class ObjectTracker {
     SE3 T_world_object_first;  // for the hinge: motions since the first tracked frame
     std::vector<SE3> motions;  // M_w from the first tracked frame, while the hinge is unknown
     JointVector last_theta;    // last displacement (warm start), joint coordinates
+    SE3 last_motion_world;     // last frame-to-frame motion M_w (flow prediction)
+    double last_dt = 0;        // s, of last_motion_world
     int still_frames = 0;
     bool is_static = false;  // returned to the static map
   };
@@ -112,6 +118,9 @@ class ObjectTracker {
                      const std::vector<Vec3>& points_world, Joint* joint) const;
   void updateObject(ObjectState* state, const DynamicClass& dc, const ObjectFrame& frame,
                     const std::vector<ObjectCorrespondence>& correspondences, double dt);
+  /// Flow previous -> frame predicted by the previous frame's depth, the camera poses and each
+  /// tracked object's last motion at constant velocity (working px, CV_32FC2; NaN without depth).
+  cv::Mat flowPrediction(const ObjectFrame& frame, double dt) const;
 
   ObjectTrackerParams params_;
   CameraModel camera_;

@@ -264,6 +264,7 @@ TrackerOutput Tracker::process(const Frame& frame) {
       ObjectTrackerParams object_params;
       object_params.classes = parseDynamicClasses(params_.dynamic_classes);
       object_params.stride = params_.object_stride;
+      object_params.flow_warp_smoothing_px = params_.object_flow_smoothing_px;
       s.objects = std::make_unique<ObjectTracker>(object_params, s.preparer->geometry().working,
                                                   s.flow_options);
     }

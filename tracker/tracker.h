@@ -160,7 +160,8 @@ struct TrackerParams {
   // the road, door revolute in the wall). Frames without class masks are not affected.
   bool dynamic_objects = true;
   std::string dynamic_classes = "10:planar:1,11:revolute:2,12:planar:1";
-  int object_stride = 2;  // working px between an object's sample points
+  int object_stride = 2;                // working px between an object's sample points
+  double object_flow_smoothing_px = 4;  // working px (ObjectTrackerParams::flow_warp_smoothing_px)
 
   // Keyframe output (KEYFRAME messages at working resolution).
   double upsample_sigma_range = 12.0;  // grey levels

@@ -111,6 +111,7 @@ void validateTrackerParams(const TrackerParams& p) {
         "resend tolerances must be >= 0");
   check(p.resend_min_keyframes >= 1, "resend_min_keyframes must be >= 1");
   check(p.object_stride >= 1, "object_stride must be >= 1");
+  check(p.object_flow_smoothing_px >= 0, "object_flow_smoothing_px must be >= 0");
   parseDynamicClasses(p.dynamic_classes);  // throws naming the bad item
 }
 
@@ -193,6 +194,7 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("dynamic_objects", &p.dynamic_objects);
   r.get("dynamic_classes", &p.dynamic_classes);
   r.get("object_stride", &p.object_stride);
+  r.get("object_flow_smoothing_px", &p.object_flow_smoothing_px);
   r.finish();
   try {
     validateTrackerParams(p);
