@@ -12,6 +12,7 @@
 #include "tracker/frontend_refine.h"
 #include "tracker/mono_init.h"
 #include "tracker/motion_only.h"
+#include "tracker/motion_segmentation.h"
 #include "tracker/object_tracker.h"
 
 namespace radslam {
@@ -153,6 +154,14 @@ struct Tracker::Impl {
   /// empty: nothing moves).
   std::unique_ptr<ObjectTracker> objects;
   cv::Mat moving;
+  /// Frames without class masks: moving objects from the flow (null when off), and this
+  /// frame's instance and class masks from it (empty when nothing moves).
+  std::unique_ptr<MotionSegmenter> segmenter;
+  cv::Mat segmented_instance, segmented_class;
+  /// Segments the frame's moving pixels from its flow to the reference keyframe; where some
+  /// move, their correspondences are measured again without them and the frame re-aligned.
+  void segmentMotion(const KeyframeData& ref, const PreparedImage& image, TrackedFlow* tracked,
+                     MotionOnlyResult* aligned);
   /// The frame's objects from its depth (sensor or stereo) and its final pose.
   ObjectList trackObjects(const Frame& frame, const PreparedImage& image, const SE3& T_world_cam);
   /// Aligns the pending frames again; with `leaving`, only those of these keyframes, which are
@@ -265,6 +274,15 @@ TrackerOutput Tracker::process(const Frame& frame) {
       object_params.classes = parseDynamicClasses(params_.dynamic_classes);
       object_params.stride = params_.object_stride;
       object_params.flow_warp_smoothing_px = params_.object_flow_smoothing_px;
+      if (params_.motion_segmentation) {
+        // Objects found by motion segmentation: a class of their own with a free joint.
+        object_params.classes.push_back(
+            DynamicClass{params_.motion_class_id, JointType::kFree, -1});
+        MotionSegmentationParams segmentation;
+        segmentation.min_residual_px = params_.motion_residual_px;
+        segmentation.min_object_pixels = params_.motion_min_pixels;
+        s.segmenter = std::make_unique<MotionSegmenter>(segmentation);
+      }
       s.objects = std::make_unique<ObjectTracker>(object_params, s.preparer->geometry().working,
                                                   s.flow_options);
     }
@@ -276,15 +294,24 @@ TrackerOutput Tracker::process(const Frame& frame) {
   s.stats.ba_ms = 0;
   s.stats.flow_ms = 0;
   s.stats.keyframe_ba_deg = 0;
+  s.segmented_instance.release();
+  s.segmented_class.release();
   if (s.graph.empty()) {
     s.initialise(frame, image, &out);
   } else {
     s.track(frame, image, &out);
   }
   out.has_pose = true;
-  if (s.objects && !image.class_id.empty()) {
+  out.moving_mask = s.moving;
+  const bool segmented = image.class_id.empty() && !s.segmented_class.empty();
+  if (s.objects && (!image.class_id.empty() || segmented)) {
+    PreparedImage masked = image;
+    if (segmented) {
+      masked.instance = s.segmented_instance;
+      masked.class_id = s.segmented_class;
+    }
     out.has_objects = true;
-    out.objects = s.trackObjects(frame, image, out.pose.T_world_cam);
+    out.objects = s.trackObjects(frame, masked, out.pose.T_world_cam);
   }
   ++s.stats.frames;
   s.stats.keyframes = s.graph.size();
@@ -397,7 +424,7 @@ void Tracker::Impl::track(const Frame& frame, const PreparedImage& image, Tracke
   stats.flow_ms += msSince(t_flow);
   stats.valid_fraction = c.valid_fraction;
 
-  const MotionOnlyResult aligned =
+  MotionOnlyResult aligned =
       aligner.align(g.grid, {ref.ba}, {MotionOnlyEdge{0, c.target, c.weight}}, T_pred);
   cv::Scalar mean, stddev;
   cv::meanStdDev(image.grey, mean, stddev);
@@ -425,6 +452,7 @@ void Tracker::Impl::track(const Frame& frame, const PreparedImage& image, Tracke
     return;
   }
   lost_streak = 0;
+  if (segmenter && image.class_id.empty()) segmentMotion(ref, image, &tracked, &aligned);
 
   const Mat3 R_frame_kf = (aligned.T_world_frame.inverse() * ref.ba.T_world_cam).rotation();
   const FlowMotion motion = measureFlowMotion(c.target, c.weight, g.grid, R_frame_kf);
@@ -461,6 +489,70 @@ void Tracker::Impl::track(const Frame& frame, const PreparedImage& image, Tracke
   frames.push_back(r);
   pending_frames.push_back(PendingFrame{frames.size() - 1, c.target, c.weight});
   out->pose = poseMessage(r);
+}
+
+void Tracker::Impl::segmentMotion(const KeyframeData& ref, const PreparedImage& image,
+                                  TrackedFlow* tracked, MotionOnlyResult* aligned) {
+  const GridGeometry& g = preparer->geometry();
+  constexpr float kInf = std::numeric_limits<float>::infinity();
+  // Only flow the front end trusts is judged: occlusions and mismatches disagree with the
+  // static prediction too. The confidence without masks: the keyframe's own mask must not hide
+  // an object that still moves.
+  const Correspondences unmasked = flowToCorrespondences(
+      ref.grey, image.grey, tracked->forward, tracked->backward, ref.structure, g, flow_options);
+  const cv::Mat& var = ref.inv_depth_var.empty() ? ref.ba.prior_inv_depth_var : ref.inv_depth_var;
+  cv::Mat sigma;
+  cv::sqrt(cv::max(var, 0.0), sigma);
+  DenseBaKeyframe shifted = ref.ba;
+  shifted.inv_depth = cv::Mat();  // (a new buffer: the copy shares the keyframe's)
+  cv::add(ref.ba.inv_depth, sigma, shifted.inv_depth);
+  // Rounds: an object the first alignment followed biases its pose, so the residuals are taken
+  // again at the pose re-aligned without the object.
+  for (int round = 0; round < p.motion_rounds; ++round) {
+    const cv::Mat targets =
+        reprojectKeyframe(g.grid, ref.ba, aligned->T_world_frame, p.min_depth_ratio);
+    // The flow change a one-sigma inverse-depth error of the keyframe makes (working px);
+    // infinite (not judged) without depth or without a trusted flow.
+    const cv::Mat targets_shifted =
+        reprojectKeyframe(g.grid, shifted, aligned->T_world_frame, p.min_depth_ratio);
+    cv::Mat depth_flow_grid(g.gridSize(), CV_32FC1);
+    for (int v = 0; v < depth_flow_grid.rows; ++v) {
+      for (int u = 0; u < depth_flow_grid.cols; ++u) {
+        const cv::Vec2f a = targets.at<cv::Vec2f>(v, u), b = targets_shifted.at<cv::Vec2f>(v, u);
+        const cv::Vec2f w = unmasked.weight.at<cv::Vec2f>(v, u);
+        const float change = g.cell * std::hypot(b[0] - a[0], b[1] - a[1]);
+        depth_flow_grid.at<float>(v, u) =
+            std::isfinite(change) && std::isfinite(sigma.at<float>(v, u)) && (w[0] > 0 || w[1] > 0)
+                ? change
+                : kInf;
+      }
+    }
+    cv::Mat depth_flow;
+    cv::resize(depth_flow_grid, depth_flow, g.workingSize(), 0, 0, cv::INTER_NEAREST);
+    const cv::Mat instance =
+        segmenter->segment(tracked->forward, predictedFlow(targets, g), depth_flow);
+    const cv::Mat any = instance > 0;
+    // Most of the image disagreeing means the pose is wrong, not that the scene moves.
+    if (cv::countNonZero(any) > p.motion_max_fraction * any.total()) return;
+    if (cv::countNonZero(any) == 0) {
+      segmented_instance.release();
+      segmented_class.release();
+      moving.release();
+    } else {
+      segmented_instance = instance;
+      segmented_class = cv::Mat(instance.size(), CV_16UC1, cv::Scalar(0));
+      segmented_class.setTo(cv::Scalar(p.motion_class_id), any);
+      moving = any;
+    }
+    tracked->correspondences = correspond(ref.grey, ref.gradients, ref.structure, image.grey,
+                                          tracked->forward, tracked->backward, ref.moving, moving);
+    const Correspondences& c = tracked->correspondences;
+    const MotionOnlyResult again = aligner.align(
+        g.grid, {ref.ba}, {MotionOnlyEdge{0, c.target, c.weight}}, aligned->T_world_frame);
+    if (again.ok) *aligned = again;
+    stats.valid_fraction = c.valid_fraction;
+    if (moving.empty()) return;
+  }
 }
 
 void Tracker::Impl::realignFrames(const std::vector<int>* leaving) {

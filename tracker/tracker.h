@@ -160,6 +160,15 @@ struct TrackerParams {
   // the road, door revolute in the wall). Frames without class masks are not affected.
   bool dynamic_objects = true;
   std::string dynamic_classes = "10:planar:1,11:revolute:2,12:planar:1";
+  // Frames without class masks (tracker/motion_segmentation.h): pixels whose flow to the
+  // keyframe differs from the static scene's by more than motion_residual_px (working px) form
+  // moving objects of motion_class_id (free joint) when at least motion_min_pixels large.
+  bool motion_segmentation = false;
+  double motion_residual_px = 2.0;
+  int motion_min_pixels = 400;
+  int motion_class_id = 250;
+  int motion_rounds = 2;                // segment, re-align without the objects, segment again
+  double motion_max_fraction = 0.5;     // of the image: more moving means the pose is wrong
   int object_stride = 2;                // working px between an object's sample points
   double object_flow_smoothing_px = 4;  // working px (ObjectTrackerParams::flow_warp_smoothing_px)
 
@@ -204,7 +213,10 @@ struct TrackerOutput {
   std::vector<Keyframe> keyframes;
   /// finish() only: every frame's pose recomputed from its reference keyframe's final pose.
   std::vector<PoseStamped> refreshed_poses;
-  /// The frame's moving objects (when it has class masks and dynamic_objects is on).
+  /// The frame's moving-object mask (CV_8UC1 working size, 255 = moving; empty: none), from its
+  /// class masks or from motion segmentation.
+  cv::Mat moving_mask;
+  /// The frame's moving objects (when it has class masks or segmented ones, dynamic_objects on).
   bool has_objects = false;
   ObjectList objects;
   TrackerStats stats;

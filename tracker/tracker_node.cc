@@ -111,6 +111,11 @@ void validateTrackerParams(const TrackerParams& p) {
         "resend tolerances must be >= 0");
   check(p.resend_min_keyframes >= 1, "resend_min_keyframes must be >= 1");
   check(p.object_stride >= 1, "object_stride must be >= 1");
+  check(p.motion_residual_px > 0 && p.motion_min_pixels >= 1 && p.motion_class_id >= 1 &&
+            p.motion_class_id <= 65535,
+        "motion_residual_px > 0, motion_min_pixels >= 1, motion_class_id in [1, 65535]");
+  check(p.motion_rounds >= 1 && p.motion_max_fraction > 0 && p.motion_max_fraction <= 1,
+        "motion_rounds >= 1, motion_max_fraction in (0, 1]");
   check(p.object_flow_smoothing_px >= 0, "object_flow_smoothing_px must be >= 0");
   parseDynamicClasses(p.dynamic_classes);  // throws naming the bad item
 }
@@ -194,6 +199,12 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("dynamic_objects", &p.dynamic_objects);
   r.get("dynamic_classes", &p.dynamic_classes);
   r.get("object_stride", &p.object_stride);
+  r.get("motion_segmentation", &p.motion_segmentation);
+  r.get("motion_residual_px", &p.motion_residual_px);
+  r.get("motion_min_pixels", &p.motion_min_pixels);
+  r.get("motion_class_id", &p.motion_class_id);
+  r.get("motion_rounds", &p.motion_rounds);
+  r.get("motion_max_fraction", &p.motion_max_fraction);
   r.get("object_flow_smoothing_px", &p.object_flow_smoothing_px);
   r.finish();
   try {
