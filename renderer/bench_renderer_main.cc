@@ -17,6 +17,7 @@
 #include "renderer/demo_field.h"
 #include "renderer/field_replica.h"
 #include "renderer/final_outputs.h"
+#include "renderer/renderer_node.h"
 
 namespace radslam {
 namespace {
@@ -135,7 +136,8 @@ int run(int argc, char** argv) {
   CommandLine cl(argc, argv,
                  "radslam-bench-renderer [--checkpoint RUN/mapper.ckpt] [--keyframes 8] "
                  "[--train-width 320] [--steps 200] [--runs 7] [--preview-step 1] "
-                 "[--preview-transmittance 0.01] [--fast-thickness 0.05] [--fast-max-step 4] "
+                 "[--preview-transmittance 0.01] [--preview-skip 0.05] [--fast-thickness 0.05] "
+                 "[--fast-max-step 4] "
                  "[--exact-runs 0] [--compare-views 3] "
                  "[--write-log FILE.lcmlog]");
   if (cl.helpRequested()) {
@@ -150,6 +152,7 @@ int run(int argc, char** argv) {
   const int runs = std::max(1, cl.getInt("runs", 7));
   const double preview_step = cl.getDouble("preview-step", 1.0);
   const double preview_transmittance = cl.getDouble("preview-transmittance", 0.01);
+  const double preview_skip = cl.getDouble("preview-skip", RendererParams().preview_skip_thickness);
   const std::string log_path = cl.get("write-log", "");
   const std::string checkpoint = cl.get("checkpoint", "");
   const int exact_runs = cl.getInt("exact-runs", 0);
@@ -206,9 +209,13 @@ int run(int argc, char** argv) {
   MarchParams fast = mapper_march;
   fast.max_sample_thickness = static_cast<float>(fast_thickness);
   fast.max_step_fine = static_cast<float>(fast_max_step);
-  MarchParams preview = fast;
-  preview.step_fine = static_cast<float>(preview_step);
-  preview.min_transmittance = static_cast<float>(preview_transmittance);
+  // The renderer's live-view march (RendererParams defaults, step and stop as given).
+  MarchParams preview = mapper_march;
+  RendererParams renderer_params;
+  renderer_params.preview_step_fine = preview_step;
+  renderer_params.preview_min_transmittance = preview_transmittance;
+  renderer_params.preview_skip_thickness = preview_skip;
+  applyPreview(renderer_params, &preview);
   for (const int width : {320, 640}) {
     const CameraModel camera = scaledCamera(keyframes[0].camera, width);
     if (exact_runs > 0)

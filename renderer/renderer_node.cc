@@ -24,6 +24,11 @@ void validate(const RendererParams& p) {
   if (!(p.near_voxels >= 0)) throw std::invalid_argument("near_voxels must be >= 0");
   if (p.render_threads < 1) throw std::invalid_argument("render_threads must be >= 1");
   if (!(p.preview_step_fine > 0)) throw std::invalid_argument("preview_step_fine must be > 0");
+  if (!(p.preview_skip_thickness >= 0) || !(p.preview_max_sample_thickness >= 0) ||
+      !(p.preview_max_step_fine >= 1))
+    throw std::invalid_argument(
+        "preview_skip_thickness and preview_max_sample_thickness must be >= 0, "
+        "preview_max_step_fine >= 1");
   if (!(p.preview_min_transmittance >= 0 && p.preview_min_transmittance < 1))
     throw std::invalid_argument("preview_min_transmittance must be in [0, 1)");
   if (p.follow_width < 0 || p.follow_width > kMaxRenderSize)
@@ -54,6 +59,9 @@ RendererParams loadRendererParams(const std::string& yaml_path,
   r.get("render_threads", &p.render_threads);
   r.get("preview_step_fine", &p.preview_step_fine);
   r.get("preview_min_transmittance", &p.preview_min_transmittance);
+  r.get("preview_skip_thickness", &p.preview_skip_thickness);
+  r.get("preview_max_sample_thickness", &p.preview_max_sample_thickness);
+  r.get("preview_max_step_fine", &p.preview_max_step_fine);
   r.get("follow_width", &p.follow_width);
   r.get("follow_rate_hz", &p.follow_rate_hz);
   r.get("status_rate_hz", &p.status_rate_hz);
@@ -125,12 +133,19 @@ int64_t RendererNode::fieldVersion() const {
   return replica_.version();
 }
 
+void applyPreview(const RendererParams& params, MarchParams* mp) {
+  mp->step_fine = static_cast<float>(params.preview_step_fine);
+  mp->min_transmittance = static_cast<float>(params.preview_min_transmittance);
+  mp->skip_thickness = static_cast<float>(params.preview_skip_thickness);
+  mp->max_sample_thickness = static_cast<float>(params.preview_max_sample_thickness);
+  mp->max_step_fine = static_cast<float>(params.preview_max_step_fine);
+}
+
 RenderResult RendererNode::render(const RenderRequest& request, bool preview) const {
   std::shared_lock<std::shared_mutex> lock(field_mutex_);
   if (!preview) return renderView(replica_, request);
   MarchParams mp = replica_.marchParams();
-  mp.step_fine = static_cast<float>(params_.preview_step_fine);
-  mp.min_transmittance = static_cast<float>(params_.preview_min_transmittance);
+  applyPreview(params_, &mp);
   return renderView(replica_, request, &mp);
 }
 

@@ -28,6 +28,12 @@ struct RendererParams {
   // an earlier stop. RENDER_REQUEST answers and the final renders use the mapper's march.
   double preview_step_fine = 1.0;  // fine voxels
   double preview_min_transmittance = 0.01;
+  // Empty-space skipping and adaptive steps of the preview (MarchParams): sub-blocks whose
+  // density bound gives less than this optical thickness per fine voxel are stepped over; steps
+  // grow up to preview_max_step_fine fine voxels while one keeps below the sample thickness.
+  double preview_skip_thickness = 0.05;
+  double preview_max_sample_thickness = 0.05;
+  double preview_max_step_fine = 4;
   int follow_width = 320;     // pixels; the follow view's camera is scaled to this width
   double follow_rate_hz = 5;  // follow views per second at most
   double status_rate_hz = 2;
@@ -40,6 +46,9 @@ struct RendererParams {
   // the launcher gives the renderer 120 s to finish).
   int video_max_frames = 60;
 };
+/// The live-view march: the mapper's (`mp`, from the replica) with the preview settings.
+void applyPreview(const RendererParams& params, MarchParams* mp);
+
 /// Loads the "renderer" section (unknown keys are errors); *dump/*source for the banner.
 RendererParams loadRendererParams(const std::string& yaml_path,
                                   const std::vector<std::string>& overrides, std::string* dump,
