@@ -182,9 +182,11 @@ const char* applyResultName(ApplyResult result) {
   return "?";
 }
 
-ApplyResult applyFieldUpdate(const FieldUpdate& u, Field* replica, std::string* error) {
+ApplyResult applyFieldUpdate(const FieldUpdate& u, Field* replica, std::string* error,
+                             GapPolicy gap_policy) {
   checkHost();
   std::string why;
+  ApplyResult result = ApplyResult::kApplied;
   FieldGeometry g;
   if (!parseFieldLayout(u.layout, u.voxel_size, &g, &why)) {
     *error = "field update " + std::to_string(u.version) + ": " + why;
@@ -217,7 +219,8 @@ ApplyResult applyFieldUpdate(const FieldUpdate& u, Field* replica, std::string* 
     if (u.base_version > r) {
       *error = "field update " + std::to_string(u.version) + " applies to version " +
                std::to_string(u.base_version) + ", the replica is at " + std::to_string(r);
-      return ApplyResult::kGap;
+      result = ApplyResult::kGap;
+      if (gap_policy == GapPolicy::kReject) return result;
     }
     if (!replica->initialized()) *replica = Field(g);
   } else {
@@ -228,7 +231,7 @@ ApplyResult applyFieldUpdate(const FieldUpdate& u, Field* replica, std::string* 
     std::memcpy(replica->blockData(b.level, id), b.data.data(), bytes);
   }
   replica->setVersion(u.version);
-  return ApplyResult::kApplied;
+  return result;
 }
 
 }  // namespace radslam

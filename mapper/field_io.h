@@ -84,12 +84,22 @@ enum class ApplyResult {
   kApplied,  // the replica is at update.version now
   kStale,    // update.version <= replica version: nothing to do
   kGap,      // base_version > replica version: updates are missing, ask for a snapshot
+             // (with GapPolicy::kApply the blocks were applied all the same)
   kInvalid,  // malformed or incompatible (error says what); the replica is unchanged
   kPartial,  // a snapshot chunk was stored; the replica changes with the last one
 };
 const char* applyResultName(ApplyResult result);
 
+/// What a delta that skips lost updates does to the replica. Each block of an update carries
+/// its whole state, so applying it leaves only the blocks that changed in the lost updates (and
+/// not since) stale: a live view stays close to the mapper's while a snapshot is on its way.
+enum class GapPolicy {
+  kReject,  // the replica is unchanged
+  kApply,   // the blocks are applied and the replica moves to update.version
+};
+
 /// Applies an update to a replica (an uninitialised replica takes the update's geometry).
-ApplyResult applyFieldUpdate(const FieldUpdate& update, Field* replica, std::string* error);
+ApplyResult applyFieldUpdate(const FieldUpdate& update, Field* replica, std::string* error,
+                             GapPolicy gap_policy = GapPolicy::kReject);
 
 }  // namespace radslam

@@ -64,8 +64,10 @@ Mapper::Mapper(const MapperParams& params) : params_(params), trainer_(params.tr
     throw std::invalid_argument("mapper: fine_voxel_size must be >= 0 and fine_voxel_rel > 0");
   if (params.sh_degree != 0 && params.sh_degree != 1)
     throw std::invalid_argument("mapper: sh_degree must be 0 or 1");
-  if (params.alloc_stride < 1 || !(params.alloc_sigma_range > 0))
-    throw std::invalid_argument("mapper: alloc_stride must be >= 1 and alloc_sigma_range > 0");
+  if (params.alloc_stride < 1 || !(params.alloc_sigma_range > 0) ||
+      !(params.alloc_max_band_voxels > 0))
+    throw std::invalid_argument(
+        "mapper: alloc_stride must be >= 1, alloc_sigma_range and alloc_max_band_voxels > 0");
   if (!(params.render_step_fine > 0) || params.render_threads < 1)
     throw std::invalid_argument("mapper: render_step_fine must be > 0 and render_threads >= 1");
 }
@@ -124,8 +126,9 @@ void Mapper::allocateFor(const KeyframeEntry& entry) {
       // A filled hole (infinite variance) is a guess: a thinner band keeps memory bounded.
       const float range =
           std::isfinite(var) ? params_.alloc_sigma_range : params_.alloc_hole_sigmas;
-      const float lo = std::max(sp.near, d - range * sigma);
-      const float hi = d + range * sigma;
+      const float half = std::min(range * sigma, params_.alloc_max_band_voxels * fine);
+      const float lo = std::max(sp.near, d - half);
+      const float hi = d + half;
       const Eigen::Vector3f dir =
           R * Eigen::Vector3f(static_cast<float>((x - kf.camera.cx) / kf.camera.fx),
                               static_cast<float>((y - kf.camera.cy) / kf.camera.fy), 1.f);
@@ -367,6 +370,14 @@ void Mapper::initExposure(KeyframeEntry* entry) const {
     x[j] = std::log(gain);
   }
   entry->exposure = x;
+}
+
+void Mapper::skipVersionsAfterRestart() {
+  // One version per training step: 2^32 of them are centuries of training.
+  constexpr int64_t kVersionsPerRun = int64_t{1} << 32;
+  version_floor_ =
+      std::max(version_floor_, field_.initialized() ? field_.version() : 0) + kVersionsPerRun;
+  if (field_.initialized()) field_.restoreVersion(version_floor_);
 }
 
 void Mapper::reset() {

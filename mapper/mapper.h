@@ -26,6 +26,9 @@ struct MapperParams {
   // Allocation around each keyframe's depth.
   int alloc_stride = 4;         // pixels
   float alloc_sigma_range = 3;  // depth sigmas either side of the depth
+  /// ... but at most this many fine voxels either side: a pixel whose depth is that uncertain
+  /// (monocular, low parallax) would allocate long, mostly empty segments for little gain.
+  float alloc_max_band_voxels = 8;
   /// Memory bound: no fine blocks are allocated past this many (about 8 KB each with RGB), and
   /// pixels deeper than this many times the keyframe's median depth are not allocated for
   /// (monocular depth outliers would otherwise allocate long empty segments).
@@ -101,6 +104,10 @@ class Mapper {
   void saveCheckpoint(const std::string& path, bool with_images = true) const;
   /// Replaces the state by a checkpoint's. Throws std::runtime_error naming the file.
   void loadCheckpoint(const std::string& path);
+  /// Moves the field version past every version this mapper can have published before a
+  /// restart (a resumed field is older than what replicas may hold: its updates must not look
+  /// stale to them).
+  void skipVersionsAfterRestart();
 
   const MapperParams& params() const { return params_; }
   const Field& field() const { return field_; }

@@ -1,5 +1,6 @@
 // radslam-mapper: the radiance-field mapper on the bus (KEYFRAME, CONTROL in; FIELD,
 // MAPPER_POSE, STATUS out; checkpoint, PLY and renders in --out at the end).
+#include <filesystem>
 #include <iostream>
 
 #include "common/bus.h"
@@ -17,6 +18,8 @@ const char* kUsage = R"(usage: radslam-mapper [options]
                    every mode; accepted for the launcher
   --set KEY=VALUE  override mapper parameters (comma-separate several: a=1,b=2)
   --out DIR        run folder: mapper.ckpt, map_points.ply, map_mesh.ply, renders/
+  --resume FILE    continue from this checkpoint (a restart after a crash); a missing file
+                   is a warning and the mapper starts empty
 )";
 
 int run(int argc, char** argv) {
@@ -31,6 +34,7 @@ int run(int argc, char** argv) {
   const std::string mode = cli.get("mode", "mono");
   const std::string set = cli.get("set", "");
   const std::string out = cli.get("out", "");
+  const std::string resume = cli.get("resume", "");
   cli.finish();
   if (mode != "mono" && mode != "rgbd" && mode != "stereo")
     throw std::runtime_error("--mode must be mono, rgbd or stereo, got '" + mode + "'");
@@ -50,6 +54,13 @@ int run(int argc, char** argv) {
   installStopSignals();
   Bus bus(url, prefix, "mapper");
   MapperNode node(&bus, params, out);
+  if (!resume.empty()) {
+    if (std::filesystem::exists(resume)) {
+      node.resume(resume);
+    } else {
+      std::cerr << "radslam-mapper: warning: no checkpoint " << resume << " to resume from\n";
+    }
+  }
   std::cerr << "radslam-mapper: " << mode << " mode, listening on "
             << bus.fullChannel(channel::kKeyframe) << "\n";
   return node.run();

@@ -1,8 +1,10 @@
 #include "mapper/mapper_node.h"
 
 #include <algorithm>
+#include <chrono>
 #include <filesystem>
 #include <iostream>
+#include <thread>
 
 #include "common/cli.h"
 #include "mapper/field_io.h"
@@ -82,15 +84,46 @@ void MapperNode::addQueuedKeyframes() {
   queue_.clear();
 }
 
+void MapperNode::resume(const std::string& checkpoint) {
+  mapper_.loadCheckpoint(checkpoint);
+  mapper_.skipVersionsAfterRestart();
+  // Replicas are ahead of or apart from the resumed field: the first delta is based on the new
+  // version (a gap to them) and a snapshot makes them equal to it.
+  delta_base_ = mapper_.field().initialized() ? mapper_.field().version() : 0;
+  snapshot_requested_ = true;
+  std::cerr << "radslam-mapper: resumed from " << checkpoint << ": " << mapper_.keyframes().size()
+            << " keyframes, " << (mapper_.field().initialized() ? mapper_.field().totalBlocks() : 0)
+            << " blocks\n";
+}
+
+void MapperNode::requestKeyframes() {
+  Control c;
+  c.command = ControlCommand::kRepublish;
+  c.target = "tracker";
+  c.argument = "keyframes";
+  bus_->publish(channel::kControl, c);
+}
+
 void MapperNode::publishUpdate(bool flush) {
   // Bounded messages: at most max_blocks_per_update changed blocks each; a flush sends them
-  // all, in as many messages as needed.
+  // all, in as many messages as needed, paced at final_flush_mb_per_s.
+  const auto start = std::chrono::steady_clock::now();
+  double bytes = 0;
   do {
-    FieldUpdate u = mapper_.makeUpdate(delta_base_, params_.max_blocks_per_update);
+    // While a snapshot is sent, its chunks take the rest of the period's blocks.
+    const int blocks = snapshot_ && !flush
+                           ? std::max(1, params_.max_blocks_per_update - snapshotChunkBlocks())
+                           : params_.max_blocks_per_update;
+    FieldUpdate u = mapper_.makeUpdate(delta_base_, blocks);
     if (u.blocks.empty()) return;
+    if (flush && bytes > 0) {
+      std::this_thread::sleep_until(
+          start + std::chrono::duration<double>(bytes / (params_.final_flush_mb_per_s * 1e6)));
+    }
     u.header.utime = wallClockMicros();
     bus_->publish(channel::kField, u);
     delta_base_ = u.version;
+    for (const FieldBlock& b : u.blocks) bytes += static_cast<double>(b.data.size());
   } while (flush);
 }
 
@@ -102,9 +135,10 @@ void MapperNode::startSnapshot() {
     bus_->publish(channel::kField, u);
     return;
   }
-  // One chunk per update period in place of the delta: a snapshot never outgrows the FIELD
-  // rate (a whole one would be one message of the whole field).
-  snapshot_.emplace(mapper_.makeSnapshotSender(++snapshot_seq_, params_.max_blocks_per_update));
+  // One chunk per update period next to a smaller delta: a snapshot never outgrows the FIELD
+  // rate (a whole one would be one message of the whole field), and the live view of the
+  // replicas that do not need it keeps moving.
+  snapshot_.emplace(mapper_.makeSnapshotSender(++snapshot_seq_, snapshotChunkBlocks()));
 }
 
 void MapperNode::publishSnapshotChunk() {
@@ -182,6 +216,11 @@ bool MapperNode::spinOnce(int timeout_ms) {
     last_snapshot_ = now();
     startSnapshot();
   }
+  if (params_.checkpoint_period_s > 0 && !out_dir_.empty() &&
+      now() - last_checkpoint_ >= params_.checkpoint_period_s && mapper_.field().initialized()) {
+    last_checkpoint_ = now();
+    saveCheckpoint(out_dir_ + "/mapper.ckpt");
+  }
   if (save_requested_) {
     save_requested_ = false;
     saveCheckpoint(!save_request_.empty() ? save_request_
@@ -191,11 +230,8 @@ bool MapperNode::spinOnce(int timeout_ms) {
   const double t = now();
   if (t - last_update_ >= params_.update_period_s) {
     last_update_ = t;
-    if (snapshot_) {
-      publishSnapshotChunk();
-    } else {
-      publishUpdate(false);
-    }
+    if (snapshot_) publishSnapshotChunk();
+    publishUpdate(false);
     publishPoses();
   }
   if (t - last_status_ >= params_.status_period_s) {
@@ -223,12 +259,15 @@ void MapperNode::finish() {
   if (!out_dir_.empty()) {
     try {
       const MapperOutputSummary s = writeMapperOutputs(
-          mapper_, out_dir_, {params_.checkpoint_images, params_.render_stride, params_.mesh_iso},
+          mapper_, out_dir_,
+          {params_.checkpoint_images, params_.render_stride, params_.mesh_iso,
+           params_.mesh_max_faces},
           nonKeyframeViews(frame_poses_, mapper_.keyframes(), kFrameRenderStride));
       std::cerr << "radslam-mapper: wrote " << s.checkpoint << ", " << s.cloud << " ("
-                << s.cloud_points << " points), " << s.mesh << " (" << s.mesh_faces << " faces), "
-                << s.renders << " keyframe and " << s.frame_renders << " frame renders, "
-                << s.trajectory << "\n";
+                << s.cloud_points << " points), " << s.mesh << " (" << s.mesh_faces
+                << " faces, lattice step " << s.mesh_stride << "), " << s.renders
+                << " keyframe and " << s.frame_renders << " frame renders, " << s.trajectory
+                << "\n";
     } catch (const std::exception& e) {
       std::cerr << "radslam-mapper: error: " << e.what() << "\n";
       reporter_.setError(e.what());
@@ -242,6 +281,7 @@ void MapperNode::finish() {
 }
 
 int MapperNode::run() {
+  requestKeyframes();
   while (!stop_ && !radslam::stopRequested()) {
     if (!spinOnce(100)) break;  // end of a file:// log or a bus error
   }

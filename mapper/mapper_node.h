@@ -3,6 +3,7 @@
 // POSE only serves the final outputs: renders of every 10th non-keyframe at its tracked pose.
 #pragma once
 
+#include <algorithm>
 #include <chrono>
 #include <cstdint>
 #include <map>
@@ -24,6 +25,15 @@ class MapperNode {
  public:
   /// out_dir: where checkpoints and final outputs go ("" = no files).
   MapperNode(Bus* bus, const MapperNodeParams& params, std::string out_dir);
+
+  /// Continues from a checkpoint of an earlier run of this mapper (restart after a crash):
+  /// field, optimiser and keyframes; replicas get a snapshot. Throws std::runtime_error naming
+  /// the file when it cannot be read (the mapper is then unchanged).
+  void resume(const std::string& checkpoint);
+
+  /// Asks the tracker for every keyframe it still has (CONTROL REPUBLISH): those sent while
+  /// this mapper was not running. run() does it once at the start.
+  void requestKeyframes();
 
   /// Loops until a stop (signal or CONTROL STOP for "mapper" or all) or the end of a file://
   /// log, then finishes (final training, outputs). Returns the process exit code.
@@ -50,6 +60,7 @@ class MapperNode {
   /// empty one.
   void startSnapshot();
   void publishSnapshotChunk();
+  int snapshotChunkBlocks() const { return std::max(1, params_.max_blocks_per_update * 3 / 4); }
   void publishPoses();
   void publishStatus();
   void saveCheckpoint(const std::string& path);
@@ -71,7 +82,7 @@ class MapperNode {
   std::string save_request_;  // checkpoint path asked for by CONTROL SAVE ("" = none)
   bool save_requested_ = false;
   std::chrono::steady_clock::time_point start_;
-  double last_update_ = -1e9, last_status_ = -1e9, last_snapshot_ = -1e9;
+  double last_update_ = -1e9, last_status_ = -1e9, last_snapshot_ = -1e9, last_checkpoint_ = 0;
   int64_t rays_ = 0;
   double train_s_ = 0;
   TrainStats last_stats_;

@@ -97,10 +97,12 @@ MapperOutputSummary writeMapperOutputs(const Mapper& mapper, const std::string& 
   summary.cloud = (out / "map_points.ply").string();
   writePly(summary.cloud, cloud);
   summary.cloud_points = cloud.points.size();
-  const Mesh mesh = extractMesh(mapper.field(), options.mesh_iso);
+  const Mesh mesh = extractMeshWithin(mapper.field(), options.mesh_iso,
+                                      static_cast<size_t>(options.mesh_max_faces));
   summary.mesh = (out / "map_mesh.ply").string();
   writePly(summary.mesh, mesh);
   summary.mesh_faces = mesh.faces.size();
+  summary.mesh_stride = mesh.stride;
 
   for (int i : order) {
     const KeyframeEntry& e = store.entry(i);

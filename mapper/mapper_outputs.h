@@ -16,6 +16,7 @@ struct MapperOutputOptions {
   bool checkpoint_images = true;
   int cloud_stride = 2;  // pixels
   float mesh_iso = 1.f;
+  int mesh_max_faces = 4000000;  // a coarser lattice beyond (extractMeshWithin)
 };
 
 /// A view to render besides the keyframes: a tracked frame at its pose.
@@ -31,6 +32,7 @@ struct MapperOutputSummary {
   int renders = 0;        // keyframes
   int frame_renders = 0;  // other frames
   size_t cloud_points = 0, mesh_faces = 0;
+  int mesh_stride = 1;  // fine voxels
 };
 
 /// The frames to render besides the keyframes: of the tracked poses (latest per frame index),

@@ -45,6 +45,7 @@ MapperNodeParams loadMapperParams(const std::string& yaml_path,
   r.get("fill_depth_holes", &c.fill_depth_holes);
   r.get("exposure_init_stride", &c.exposure_init_stride);
   getFloat(r, "alloc_hole_sigmas", &c.alloc_hole_sigmas);
+  getFloat(r, "alloc_max_band_voxels", &c.alloc_max_band_voxels);
   // Training.
   TrainerParams& t = c.trainer;
   r.get("batch_rays", &t.batch_rays);
@@ -91,18 +92,23 @@ MapperNodeParams loadMapperParams(const std::string& yaml_path,
   r.get("max_blocks_per_update", &p.max_blocks_per_update);
   r.get("status_period_s", &p.status_period_s);
   r.get("snapshot_min_period_s", &p.snapshot_min_period_s);
+  r.get("final_flush_mb_per_s", &p.final_flush_mb_per_s);
   r.get("final_training_s", &p.final_training_s);
   r.get("checkpoint_images", &p.checkpoint_images);
+  r.get("checkpoint_period_s", &p.checkpoint_period_s);
   r.get("render_stride", &p.render_stride);
   getFloat(r, "mesh_iso", &p.mesh_iso);
+  r.get("mesh_max_faces", &p.mesh_max_faces);
   r.get("publish_poses", &p.publish_poses);
   r.finish();
   t.depth_loss = parseDepthLoss(depth_loss);
   if (p.update_period_s <= 0 || p.status_period_s <= 0 || p.final_training_s < 0 ||
-      p.render_stride < 1 || p.snapshot_min_period_s < 0 || p.max_blocks_per_update < 1)
+      p.render_stride < 1 || p.snapshot_min_period_s < 0 || p.max_blocks_per_update < 1 ||
+      !(p.final_flush_mb_per_s > 0) || !(p.checkpoint_period_s >= 0) || p.mesh_max_faces < 1)
     throw std::invalid_argument(
         "mapper: update_period_s and status_period_s must be > 0, final_training_s >= 0, "
-        "render_stride >= 1, snapshot_min_period_s >= 0, max_blocks_per_update >= 1");
+        "render_stride >= 1, snapshot_min_period_s >= 0, max_blocks_per_update >= 1, "
+        "final_flush_mb_per_s > 0, checkpoint_period_s >= 0, mesh_max_faces >= 1");
   if (dump) *dump = r.dump();
   if (source) *source = r.source();
   return p;

@@ -79,25 +79,31 @@ void checkLittleEndian() {
 
 }  // namespace
 
-Mesh extractMesh(const Field& field, float iso) {
+Mesh extractMesh(const Field& field, float iso, int stride, size_t max_faces) {
   Mesh mesh;
   if (!field.initialized() || field.empty()) return mesh;
+  if (stride < 1 || Field::kBlockDim % stride != 0)
+    throw std::invalid_argument("extractMesh: stride must divide the block size");
   const int fine = field.numLevels() - 1;
   const float s = static_cast<float>(field.voxelSize(fine));
-  constexpr int B = Field::kBlockDim;
-  constexpr int N = B + 1;  // lattice points per axis for the block's cells
+  const int B = Field::kBlockDim / stride;  // cells per block and axis
+  const int N = B + 1;                      // lattice points per axis for the block's cells
   std::vector<float> value(N * N * N);
   std::vector<Eigen::Vector3f> color(N * N * N);
   std::unordered_map<EdgeKey, int, EdgeHash> vertex_of_edge;
 
   for (int b = 0; b < field.numBlocks(fine); ++b) {
-    const Eigen::Vector3i base = field.blockIndex(fine, b) * B;
+    if (mesh.faces.size() > max_faces) {
+      mesh.complete = false;
+      break;
+    }
+    const Eigen::Vector3i base = field.blockIndex(fine, b) * Field::kBlockDim;
     // Thickness and colour at the (B+1)^3 lattice points of this block's cells.
     bool any_in = false, any_out = false;
     for (int z = 0; z < N; ++z)
       for (int y = 0; y < N; ++y)
         for (int x = 0; x < N; ++x) {
-          const Eigen::Vector3f p = (base + Eigen::Vector3i(x, y, z)).cast<float>() * s;
+          const Eigen::Vector3f p = (base + stride * Eigen::Vector3i(x, y, z)).cast<float>() * s;
           const Field::Value v = field.query(p, Eigen::Vector3f::Zero());
           const int i = (z * N + y) * N + x;
           value[i] = v.occupied ? softplus(v.raw_density) : 0.f;
@@ -141,8 +147,9 @@ Mesh extractMesh(const Field& field, float iso) {
             for (int c : tet) (in[c] ? inside[ni++] : outside[no++]) = c;
             if (ni == 0 || no == 0) continue;
             auto lattice = [&](int c) {
-              return Eigen::Vector3i(base.x() + x + (c & 1), base.y() + y + ((c >> 1) & 1),
-                                     base.z() + z + (c >> 2));
+              return Eigen::Vector3i(base.x() + stride * (x + (c & 1)),
+                                     base.y() + stride * (y + ((c >> 1) & 1)),
+                                     base.z() + stride * (z + (c >> 2)));
             };
             auto edge = [&](int a, int c) {
               return vertexOn(idx[a], idx[c], lattice(a), lattice(c));
@@ -175,6 +182,16 @@ Mesh extractMesh(const Field& field, float iso) {
             }
           }
         }
+  }
+  mesh.stride = stride;
+  return mesh;
+}
+
+Mesh extractMeshWithin(const Field& field, float iso, size_t max_faces) {
+  Mesh mesh;
+  for (int stride = 1; stride <= Field::kBlockDim; stride *= 2) {
+    mesh = extractMesh(field, iso, stride, max_faces);
+    if (mesh.complete) break;
   }
   return mesh;
 }

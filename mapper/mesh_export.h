@@ -4,6 +4,7 @@
 
 #include <array>
 #include <cstdint>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -20,6 +21,8 @@ struct Mesh {
   std::vector<Eigen::Vector3f> vertices;       // world, m
   std::vector<std::array<uint8_t, 3>> colors;  // RGB per vertex
   std::vector<Eigen::Vector3i> faces;          // counter-clockwise seen from outside
+  bool complete = true;                        // false: extraction stopped at the face budget
+  int stride = 1;                              // lattice step, fine voxels
 };
 
 struct PointCloud {
@@ -32,8 +35,15 @@ struct PointCloud {
 /// fine lattice inside allocated fine blocks. Marching cubes with each cube split into six
 /// tetrahedra around its main diagonal (no ambiguous cases, watertight; vertices shared
 /// between cells). Faces are oriented with the normal pointing out of the dense side; vertex
-/// colours are the field's view-independent colour.
-Mesh extractMesh(const Field& field, float iso = 1.f);
+/// colours are the field's view-independent colour. `stride` (dividing the block size) samples
+/// every stride-th fine lattice point (a coarser mesh); extraction stops (complete = false) once
+/// the mesh has more than max_faces faces.
+Mesh extractMesh(const Field& field, float iso = 1.f, int stride = 1,
+                 size_t max_faces = std::numeric_limits<size_t>::max());
+
+/// The finest mesh (stride 1, 2, 4 or 8) within max_faces faces: a noisy monocular field's
+/// iso-surface at the fine lattice can have tens of millions of faces (gigabytes to extract).
+Mesh extractMeshWithin(const Field& field, float iso, size_t max_faces);
 
 /// Surface points of rendered views: every `stride`-th pixel whose ray is absorbed (weight >=
 /// 0.5) gives the point at its rendered depth with its rendered colour; one point per fine

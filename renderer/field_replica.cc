@@ -43,7 +43,9 @@ ApplyResult FieldReplica::apply(const FieldUpdate& update, std::string* error) {
         return ApplyResult::kInvalid;
     }
   }
-  const ApplyResult result = applyFieldUpdate(update, &field_, &why);
+  // A delta past a gap is applied all the same (the view stays live) while the snapshot that
+  // makes the replica exact again is on its way.
+  const ApplyResult result = applyFieldUpdate(update, &field_, &why, GapPolicy::kApply);
   switch (result) {
     case ApplyResult::kApplied:
       if (update.is_snapshot) waiting_snapshot_ = false;

@@ -34,9 +34,10 @@ class FieldReplica {
   void setSnapshotRequest(SnapshotRequest callback) { request_snapshot_ = std::move(callback); }
 
   /// Applies an update in version order or a snapshot whole. A non-snapshot update whose
-  /// base_version is ahead of the replica (or any update before the first snapshot when the
-  /// replica is empty and base_version > 0) is a gap: nothing changes and a snapshot is asked
-  /// for (once until one arrives). Returns the result; *error says what was wrong on kInvalid.
+  /// base_version is ahead of the replica (a late join, a lost message) is a gap: its blocks are
+  /// applied all the same (GapPolicy::kApply, so a live view stays live) and a snapshot is asked
+  /// for (once until one arrives), which makes the replica exact again. Returns the result;
+  /// *error says what was wrong on kGap and kInvalid.
   ApplyResult apply(const FieldUpdate& update, std::string* error = nullptr);
 
   const Field& field() const { return field_; }

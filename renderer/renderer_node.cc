@@ -133,6 +133,11 @@ int64_t RendererNode::fieldVersion() const {
   return replica_.version();
 }
 
+bool RendererNode::waitingForSnapshot() const {
+  std::shared_lock<std::shared_mutex> lock(field_mutex_);
+  return replica_.waitingForSnapshot();
+}
+
 void applyPreview(const RendererParams& params, MarchParams* mp) {
   mp->step_fine = static_cast<float>(params.preview_step_fine);
   mp->min_transmittance = static_cast<float>(params.preview_min_transmittance);

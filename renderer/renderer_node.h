@@ -65,6 +65,8 @@ class RendererNode {
   RenderResult render(const RenderRequest& request, bool preview = false) const;
   const ViewerState& viewer() const { return viewer_; }
   int64_t fieldVersion() const;
+  /// True while the replica is not known to equal the mapper's field (a snapshot is asked for).
+  bool waitingForSnapshot() const;
 
   /// Handles the bus until a signal (stopRequested()), CONTROL STOP or the end of a log
   /// (file://); then writes the final outputs. With linger, goes on handling the bus (renders,

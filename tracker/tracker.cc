@@ -322,6 +322,16 @@ TrackerOutput Tracker::process(const Frame& frame) {
   return out;
 }
 
+std::vector<Keyframe> Tracker::republishKeyframes() {
+  Impl& s = *impl_;
+  std::vector<Keyframe> out;
+  for (int id = 0; id < s.graph.size(); ++id) {
+    const KeyframeData& k = s.graph.keyframe(id);
+    if (!k.color.empty() && !k.grey.empty()) out.push_back(s.keyframeMessage(id));
+  }
+  return out;
+}
+
 TrackerOutput Tracker::finish() {
   Impl& s = *impl_;
   TrackerOutput out;

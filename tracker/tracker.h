@@ -240,6 +240,11 @@ class Tracker {
   /// frame's refreshed pose. Further process() calls continue tracking.
   TrackerOutput finish();
 
+  /// Every keyframe that still has its images (the window and the kept ones that left it, see
+  /// loop_max_kept_images) at its current estimate, each with a new version: what a mapper
+  /// that restarted asks for (CONTROL REPUBLISH).
+  std::vector<Keyframe> republishKeyframes();
+
   const TrackerParams& params() const { return params_; }
   TrackerMode mode() const { return mode_; }
   /// Null before the first frame.

@@ -19,7 +19,8 @@ double secondsSince(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
 }
 
-constexpr int kKeyframeGapMs = 50;  // between keyframes of one burst (~40 MB/s at most)
+constexpr int kKeyframeGapMs = 50;    // between keyframes of one burst (~40 MB/s at most)
+constexpr int kRepublishGapMs = 200;  // between re-published keyframes (~10 MB/s)
 
 // Warn about the first few of a kind, then every 100th, so a bad stream cannot flood the log.
 bool shouldWarn(int64_t count) { return count <= 5 || count % 100 == 0; }
@@ -246,6 +247,9 @@ void TrackerNode::onControl(const Control& control) {
   if (!control.target.empty() && control.target != "tracker") return;
   if (control.command == ControlCommand::kStop) requestStop();
   if (control.command == ControlCommand::kReset) reset_requested_ = true;
+  // Only when addressed: a REPUBLISH for all processes means the field (mapper).
+  if (control.command == ControlCommand::kRepublish && control.target == "tracker")
+    republish_requested_ = true;
 }
 
 void TrackerNode::handle(const Frame& frame) {
@@ -289,15 +293,24 @@ void TrackerNode::publish(const TrackerOutput& output) {
     // The small refreshed poses before the keyframes: a keyframe burst can fill the receivers'
     // socket buffers, and what arrives behind it is lost.
     for (const PoseStamped& pose : output.refreshed_poses) bus_->publish(channel::kPose, pose);
-    for (size_t k = 0; k < output.keyframes.size(); ++k) {
-      // A keyframe is megabytes of UDP fragments: pace bursts so that receivers keep up (a
-      // receive buffer overrun loses whole messages).
-      if (k > 0) std::this_thread::sleep_for(std::chrono::milliseconds(kKeyframeGapMs));
-      bus_->publish(channel::kKeyframe, output.keyframes[k]);
-    }
   } catch (const std::invalid_argument& e) {
     reporter_.setError(e.what());
     std::cerr << "radslam-tracker: warning: cannot publish: " << e.what() << "\n";
+  }
+  publishKeyframes(output.keyframes);
+}
+
+void TrackerNode::publishKeyframes(const std::vector<Keyframe>& keyframes) {
+  for (size_t k = 0; k < keyframes.size(); ++k) {
+    // Pace bursts so that receivers keep up (a receive buffer overrun loses whole messages).
+    if (k > 0) std::this_thread::sleep_for(std::chrono::milliseconds(kKeyframeGapMs));
+    try {
+      bus_->publish(channel::kKeyframe, keyframes[k]);
+    } catch (const std::invalid_argument& e) {
+      reporter_.setError(e.what());
+      std::cerr << "radslam-tracker: warning: cannot publish keyframe " << keyframes[k].keyframe_id
+                << ": " << e.what() << "\n";
+    }
   }
 }
 
@@ -364,6 +377,19 @@ int TrackerNode::run() {
     if (!queue_.empty()) {
       processQueued();
       last_frame = Clock::now();
+    }
+    if (republish_requested_) {
+      republish_requested_ = false;
+      std::vector<Keyframe> keyframes = tracker_->republishKeyframes();
+      std::cerr << "radslam-tracker: re-publishing " << keyframes.size() << " keyframes\n";
+      republish_queue_.assign(std::make_move_iterator(keyframes.begin()),
+                              std::make_move_iterator(keyframes.end()));
+    }
+    if (!republish_queue_.empty() &&
+        Clock::now() - last_republish_ >= std::chrono::milliseconds(kRepublishGapMs)) {
+      publishKeyframes({republish_queue_.front()});
+      republish_queue_.pop_front();
+      last_republish_ = Clock::now();
     }
     if (secondsSince(last_status) >= options_.status_period_s) {
       publishStatus(processed_ > 0 ? ProcessState::kRunning : ProcessState::kIdle);

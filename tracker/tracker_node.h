@@ -3,6 +3,7 @@
 // knows nothing of the bus.
 #pragma once
 
+#include <chrono>
 #include <cstdint>
 #include <deque>
 #include <memory>
@@ -60,6 +61,8 @@ class TrackerNode {
   void processQueued();
   void handle(const Frame& frame);
   void publish(const TrackerOutput& output);
+  /// Paced: a keyframe is megabytes of UDP fragments.
+  void publishKeyframes(const std::vector<Keyframe>& keyframes);
   void publishStatus(ProcessState state);
   void finish();
 
@@ -72,6 +75,11 @@ class TrackerNode {
   int64_t last_index_ = -1;
   int64_t processed_ = 0, dropped_ = 0, rejected_ = 0;
   bool reset_requested_ = false;
+  bool republish_requested_ = false;  // CONTROL REPUBLISH: every keyframe again
+  // Keyframes being re-published, one per kRepublishGapMs between frames (a burst would
+  // overrun the receive buffers, the tracker's own included: it loses CAMERA frames).
+  std::deque<Keyframe> republish_queue_;
+  std::chrono::steady_clock::time_point last_republish_;
   TrackerStats last_stats_;
 };
 

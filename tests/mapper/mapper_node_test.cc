@@ -41,6 +41,16 @@ Keyframe keyframeOf(const SyntheticScene& scene, int frame, int id) {
   return kf;
 }
 
+SyntheticScene smallRoom(int frames) {
+  SyntheticConfig config;
+  config.scene = "room";
+  config.frames = frames;
+  config.width = 80;
+  config.height = 60;
+  config.stereo = false;
+  return SyntheticScene::make(config);
+}
+
 MapperNodeParams nodeParams() {
   MapperNodeParams p;
   p.core.trainer.batch_rays = 512;
@@ -53,13 +63,7 @@ MapperNodeParams nodeParams() {
 }
 
 TEST(MapperNode, FollowsKeyframesPublishesUpdatesAndWritesOutputs) {
-  SyntheticConfig config;
-  config.scene = "room";
-  config.frames = 41;
-  config.width = 80;
-  config.height = 60;
-  config.stereo = false;
-  const SyntheticScene scene = SyntheticScene::make(config);
+  const SyntheticScene scene = smallRoom(41);
   const std::string out = tempDir();
   Bus bus("memq://", "MAPTEST_", "test");
   MapperNode node(&bus, nodeParams(), out);
@@ -186,6 +190,86 @@ TEST(MapperNode, FollowsKeyframesPublishesUpdatesAndWritesOutputs) {
   }
   EXPECT_EQ(rendered, 5u);  // 3 keyframes + frames 10 and 20
   EXPECT_EQ(stampFileName(1305031102175304), "1305031102.175304");
+}
+
+TEST(MapperNode, ResumesFromACheckpointAsksForKeyframesAndResyncsReplicas) {
+  const SyntheticScene scene = smallRoom(30);
+  const std::string out = tempDir();
+  const std::string checkpoint = out + "/mapper.ckpt";
+  Bus bus("memq://", "RESUMETEST_", "test");
+  std::vector<FieldUpdate> updates;
+  std::vector<Control> controls;
+  bus.subscribe<FieldUpdate>(channel::kField, [&](const FieldUpdate& u) { updates.push_back(u); });
+  bus.subscribe<Control>(channel::kControl, [&](const Control& c) { controls.push_back(c); });
+
+  // A first mapper learns two keyframes, checkpoints periodically and goes on past its last
+  // checkpoint (what a crash loses); a replica follows it.
+  Field replica;
+  std::string error;
+  MapperNodeParams params = nodeParams();
+  params.checkpoint_period_s = 1e-3;
+  {
+    MapperNode first(&bus, params, out);
+    bus.publish(channel::kKeyframe, keyframeOf(scene, 0, 0));
+    bus.publish(channel::kKeyframe, keyframeOf(scene, 15, 1));
+    for (int i = 0; i < 20; ++i) ASSERT_TRUE(first.spinOnce(5));
+    ASSERT_TRUE(std::filesystem::exists(checkpoint));
+    std::filesystem::rename(checkpoint, out + "/kept.ckpt");  // the crash loses what follows
+    for (int i = 0; i < 20; ++i) ASSERT_TRUE(first.spinOnce(5));
+    bus.handle(0);
+  }
+  for (const FieldUpdate& u : updates)
+    ASSERT_EQ(applyFieldUpdate(u, &replica, &error), ApplyResult::kApplied) << error;
+  const int64_t replica_version = replica.version();
+  updates.clear();
+  controls.clear();
+
+  // The restarted mapper: the checkpoint's keyframes, a request for the others, and field
+  // versions past the replica's so that its first delta is a gap there, not stale.
+  params.checkpoint_period_s = 0;
+  MapperNode second(&bus, params, out);
+  second.resume(out + "/kept.ckpt");
+  EXPECT_EQ(second.mapper().keyframes().size(), 2);
+  EXPECT_GT(second.mapper().field().version(), replica_version);
+  second.requestKeyframes();
+  bus.handle(0);
+  ASSERT_EQ(controls.size(), 1u);
+  EXPECT_EQ(controls[0].command, ControlCommand::kRepublish);
+  EXPECT_EQ(controls[0].target, "tracker");
+  // The tracker's answer: both keyframes again at a higher version, and one the first mapper
+  // never saw.
+  for (int i = 0; i < 2; ++i) {
+    Keyframe kf = keyframeOf(scene, 15 * i, i);
+    kf.version = 1;
+    bus.publish(channel::kKeyframe, kf);
+  }
+  bus.publish(channel::kKeyframe, keyframeOf(scene, 25, 2));
+  for (int i = 0; i < 300; ++i) ASSERT_TRUE(second.spinOnce(5));
+  EXPECT_EQ(second.mapper().keyframes().size(), 3);
+  second.finish();  // the last deltas
+  bus.handle(0);
+
+  // The replica: every delta is newer than what it holds (none is dropped as stale), and the
+  // snapshot with the deltas after it make it equal to the resumed field.
+  ASSERT_FALSE(updates.empty());
+  bool exact = false;
+  SnapshotAssembler assembler;
+  for (const FieldUpdate& u : updates) {
+    if (u.is_snapshot) {
+      std::string why;
+      if (assembler.add(u, &why) == SnapshotAssembler::Result::kComplete) {
+        replica = std::move(assembler.field());
+        assembler.field() = Field();
+        exact = true;
+      }
+      continue;
+    }
+    EXPECT_GT(u.version, replica_version);
+    const ApplyResult r = applyFieldUpdate(u, &replica, &error, GapPolicy::kApply);
+    EXPECT_TRUE(r == ApplyResult::kApplied || (r == ApplyResult::kGap && !exact)) << error;
+  }
+  ASSERT_TRUE(exact);
+  EXPECT_TRUE(replica.sameContent(second.mapper().field()));
 }
 
 TEST(MapperOutputs, NonKeyframeViewsTakeEveryTenthTrackedFrameWithTheNearestKeyframeCamera) {

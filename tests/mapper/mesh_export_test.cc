@@ -39,6 +39,17 @@ Field ballField() {
   return field;
 }
 
+// Closed: every undirected edge belongs to exactly two faces, once in each direction.
+void expectClosed(const Mesh& mesh) {
+  std::map<std::pair<int, int>, int> directed;
+  for (const Eigen::Vector3i& f : mesh.faces)
+    for (int k = 0; k < 3; ++k) ++directed[{f[k], f[(k + 1) % 3]}];
+  for (const auto& [edge, count] : directed) {
+    EXPECT_EQ(count, 1);
+    EXPECT_EQ(directed.count({edge.second, edge.first}), 1u) << "open edge";
+  }
+}
+
 TEST(MeshExport, BallIsClosedOrientedAndOnTheSurface) {
   const Field field = ballField();
   const Mesh mesh = extractMesh(field, 1.f);
@@ -49,14 +60,7 @@ TEST(MeshExport, BallIsClosedOrientedAndOnTheSurface) {
     EXPECT_GT(c[0], 240);
     EXPECT_LT(c[1], 15);
   }
-  // Closed: every undirected edge belongs to exactly two faces, once in each direction.
-  std::map<std::pair<int, int>, int> directed;
-  for (const Eigen::Vector3i& f : mesh.faces)
-    for (int k = 0; k < 3; ++k) ++directed[{f[k], f[(k + 1) % 3]}];
-  for (const auto& [edge, count] : directed) {
-    EXPECT_EQ(count, 1);
-    EXPECT_EQ(directed.count({edge.second, edge.first}), 1u) << "open edge";
-  }
+  expectClosed(mesh);
   // Oriented outwards: the signed volume is the ball's.
   double volume = 0;
   for (const Eigen::Vector3i& f : mesh.faces)
@@ -86,6 +90,23 @@ TEST(MeshExport, PointsLieOnTheRenderedSurface) {
     EXPECT_LT(cloud.points[i].z(), kCentre.z());  // the near side only
     EXPECT_GT(cloud.colors[i][0], 200);
   }
+}
+
+TEST(MeshExport, FaceBudgetTakesACoarserLattice) {
+  const Field field = ballField();
+  const Mesh full = extractMesh(field, 1.f);
+  EXPECT_TRUE(full.complete);
+  EXPECT_FALSE(extractMesh(field, 1.f, 1, full.faces.size() / 2).complete);
+  EXPECT_THROW(extractMesh(field, 1.f, 3), std::invalid_argument);
+  const Mesh coarse = extractMeshWithin(field, 1.f, full.faces.size() / 2);
+  ASSERT_TRUE(coarse.complete);
+  EXPECT_EQ(coarse.stride, 2);
+  EXPECT_LE(coarse.faces.size(), full.faces.size() / 2);
+  EXPECT_GT(coarse.faces.size(), full.faces.size() / 8);
+  for (const Eigen::Vector3f& v : coarse.vertices)
+    EXPECT_NEAR((v - kCentre).norm(), kRadius, 0.04f);
+  expectClosed(coarse);
+  EXPECT_EQ(extractMeshWithin(field, 1.f, full.faces.size()).stride, 1);
 }
 
 TEST(MeshExport, WritesBinaryPly) {

@@ -1,6 +1,7 @@
 #include "renderer/field_replica.h"
 
 #include <gtest/gtest.h>
+#include <cstring>
 
 #include <opencv2/core.hpp>
 
@@ -79,11 +80,14 @@ TEST(FieldReplica, LateJoinerConvergesThroughASnapshot) {
   FieldReplica b;
   std::vector<std::string> requests;
   b.setSnapshotRequest([&](const std::string& why) { requests.push_back(why); });
-  // Joins late: update k is not applicable to an empty replica.
+  // Joins late: update k - 1 skips the earlier ones; its blocks are shown all the same and the
+  // updates that follow it apply, but only the snapshot makes the replica exact.
   EXPECT_EQ(b.apply(updates[k - 1], &error), ApplyResult::kGap);
-  EXPECT_EQ(b.apply(updates[k], &error), ApplyResult::kGap);
+  EXPECT_EQ(b.version(), updates[k - 1].version);
+  EXPECT_EQ(b.apply(updates[k], &error), ApplyResult::kApplied) << error;
   ASSERT_EQ(requests.size(), 1u);  // asked once until the snapshot arrives
   EXPECT_TRUE(b.waitingForSnapshot());
+  EXPECT_FALSE(b.field().sameContent(mapper->field()));
   EXPECT_EQ(b.apply(snapshot, &error), ApplyResult::kApplied) << error;
   EXPECT_FALSE(b.waitingForSnapshot());
   EXPECT_EQ(b.version(), snapshot.version);
@@ -97,7 +101,7 @@ TEST(FieldReplica, LateJoinerConvergesThroughASnapshot) {
   expectSameImages(a.render(T, viewCamera()), b.render(T, viewCamera()));
 }
 
-TEST(FieldReplica, GapInTheMiddleAsksForASnapshotAndKeepsTheField) {
+TEST(FieldReplica, GapInTheMiddleAppliesTheBlocksAndAsksForASnapshot) {
   DemoFieldOptions options;
   options.train_steps = 0;
   auto mapper = makeDemoMapper(options);
@@ -114,7 +118,13 @@ TEST(FieldReplica, GapInTheMiddleAsksForASnapshotAndKeepsTheField) {
   EXPECT_EQ(replica.apply(u3, &error), ApplyResult::kGap);  // u2 lost
   EXPECT_EQ(requests, 1);
   EXPECT_FALSE(error.empty());
-  EXPECT_EQ(replica.version(), u1.version);
+  // u3's blocks are in (each carries its whole state); those only u2 changed are stale.
+  EXPECT_EQ(replica.version(), u3.version);
+  for (const FieldBlock& b : u3.blocks) {
+    const int id = replica.field().findBlock(b.level, b.index.x(), b.index.y(), b.index.z());
+    ASSERT_GE(id, 0);
+    EXPECT_EQ(std::memcmp(replica.field().blockData(b.level, id), b.data.data(), b.data.size()), 0);
+  }
   ASSERT_EQ(replica.apply(mapper->makeSnapshot(), &error), ApplyResult::kApplied);
   EXPECT_TRUE(replica.field().sameContent(mapper->field()));
 }

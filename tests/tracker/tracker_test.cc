@@ -224,6 +224,23 @@ TEST(Tracker, GlobalBaRefinesDepartedKeyframes) {
   checkKeyframes(r, roomFrames()[0].camera);
 }
 
+TEST(Tracker, RepublishesEveryKeyframeWithItsImagesAtANewVersion) {
+  Tracker tracker(TrackerParams{});
+  std::map<int32_t, int32_t> sent;  // keyframe id -> last version sent
+  for (const Frame& f : roomFrames()) {
+    for (const Keyframe& k : tracker.process(f).keyframes) sent[k.keyframe_id] = k.version;
+  }
+  ASSERT_GE(sent.size(), 2u);
+  const std::vector<Keyframe> again = tracker.republishKeyframes();
+  ASSERT_EQ(again.size(), sent.size());  // all still have their images (< 200 kept)
+  for (const Keyframe& k : again) {
+    ASSERT_TRUE(sent.count(k.keyframe_id)) << k.keyframe_id;
+    EXPECT_GT(k.version, sent[k.keyframe_id]);  // a mapper that has it takes the newer
+    EXPECT_FALSE(k.color.empty());
+    EXPECT_EQ(k.depth.size(), k.color.size());
+  }
+}
+
 TEST(Tracker, BadFramesAreRejectedAndTrackingGoesOn) {
   TrackerParams params;
   Tracker tracker(params);
