@@ -6,9 +6,12 @@
 #include <cerrno>
 #include <cstdint>
 #include <cstdio>
+#include <cstdlib>
 #include <exception>
+#include <functional>
 #include <map>
 #include <mutex>
+#include <sstream>
 #include <stdexcept>
 #include <string>
 #include <utility>
@@ -40,6 +43,30 @@ std::string escapeRegex(const std::string& text) {
     out += c;
   }
   return out;
+}
+
+// Fault injection for tests of lost messages: RADSLAM_DROP="KEYFRAME=0.05,FIELD=0.05" drops
+// that fraction of the messages this process publishes on those channels (names without the
+// prefix), evenly spread (with 0.05, the 10th, 30th, ... message) so that a test run is
+// reproducible. A dropped message still takes its sequence number, as one lost on the network.
+std::map<std::string, double> dropRatesFromEnvironment(const std::string& sender) {
+  std::map<std::string, double> rates;
+  const char* spec = std::getenv("RADSLAM_DROP");
+  if (!spec || !*spec) return rates;
+  std::stringstream items(spec);
+  std::string item;
+  while (std::getline(items, item, ',')) {
+    const size_t eq = item.find('=');
+    char* end = nullptr;
+    const double p = eq == std::string::npos ? -1 : std::strtod(item.c_str() + eq + 1, &end);
+    if (eq == std::string::npos || eq == 0 || !end || *end || !(p >= 0 && p <= 1))
+      throw std::runtime_error("RADSLAM_DROP: '" + item + "' is not CHANNEL=FRACTION (0 to 1)");
+    rates[item.substr(0, eq)] = p;
+  }
+  for (const auto& [channel, p] : rates)
+    std::fprintf(stderr, "%s: fault injection: dropping %.1f%% of the %s messages it publishes\n",
+                 sender.c_str(), 100 * p, channel.c_str());
+  return rates;
 }
 
 }  // namespace
@@ -108,6 +135,26 @@ struct Bus::Impl {
     }
   }
 
+  // True when fault injection drops this message of `channel` (the name without prefix): the
+  // n-th message is dropped when round(n p) grows (with p = 0.05: the 10th, 30th, ...).
+  bool injectDrop(const std::string& channel) {
+    if (drop_rates.empty()) return false;
+    const auto it = drop_rates.find(channel);
+    if (it == drop_rates.end()) return false;
+    std::lock_guard<std::mutex> lock(mutex);
+    const int64_t n = ++drop_counts[channel];
+    const double p = it->second;
+    const bool drop = std::floor(n * p + 0.5) > std::floor((n - 1) * p + 0.5);
+    if (drop) {
+      const int64_t k = ++dropped_injected[channel];
+      if (k <= kWarnFirst || k % kWarnEvery == 0)
+        std::fprintf(stderr, "%s: fault injection: dropped %s message %lld (%lld so far)\n",
+                     sender.c_str(), channel.c_str(), static_cast<long long>(n),
+                     static_cast<long long>(k));
+    }
+    return drop;
+  }
+
   bool publishBytes(const std::string& channel, const uint8_t* data, size_t size) {
     if (size > static_cast<size_t>(INT32_MAX) ||
         lcm.publish(channel, data, static_cast<unsigned int>(size)) != 0) {
@@ -132,11 +179,14 @@ struct Bus::Impl {
   std::map<std::string, int64_t> drops_per_channel;
   std::atomic<int64_t> dropped{0};
   std::exception_ptr handler_error;
+  std::map<std::string, double> drop_rates;  // fault injection (RADSLAM_DROP)
+  std::map<std::string, int64_t> drop_counts, dropped_injected;
 };
 
 Bus::Bus(const std::string& url, const std::string& prefix, const std::string& sender)
     : impl_(std::make_unique<Impl>(url, sender)), prefix_(prefix) {
   if (!impl_->lcm.good()) throw std::runtime_error("cannot open LCM URL '" + url + "'");
+  impl_->drop_rates = dropRatesFromEnvironment(sender);
 }
 
 Bus::~Bus() = default;
@@ -147,6 +197,7 @@ bool Bus::publish(const std::string& channel, T msg) {
   msg.header.sender = impl_->sender;
   msg.header.seq = impl_->nextSeq(full);
   const std::vector<uint8_t> bytes = encode(msg);
+  if (impl_->injectDrop(channel)) return true;  // "sent", lost on the way
   return impl_->publishBytes(full, bytes.data(), bytes.size());
 }
 

@@ -182,32 +182,49 @@ const char* applyResultName(ApplyResult result) {
   return "?";
 }
 
-ApplyResult applyFieldUpdate(const FieldUpdate& u, Field* replica, std::string* error,
-                             GapPolicy gap_policy) {
-  checkHost();
+namespace {
+
+// The update's geometry in *g, or false with *error saying what does not fit.
+bool checkUpdate(const FieldUpdate& u, FieldGeometry* g, std::string* error) {
   std::string why;
-  ApplyResult result = ApplyResult::kApplied;
-  FieldGeometry g;
-  if (!parseFieldLayout(u.layout, u.voxel_size, &g, &why)) {
+  if (!parseFieldLayout(u.layout, u.voxel_size, g, &why)) {
     *error = "field update " + std::to_string(u.version) + ": " + why;
-    return ApplyResult::kInvalid;
+    return false;
   }
   if (u.block_dim != Field::kBlockDim) {
     *error = "field update " + std::to_string(u.version) + ": block_dim " +
              std::to_string(u.block_dim) + ", this build uses " + std::to_string(Field::kBlockDim);
-    return ApplyResult::kInvalid;
+    return false;
   }
-  const size_t bytes = size_t(Field::kBlockVoxels) * g.channels() * sizeof(float);
+  const size_t bytes = size_t(Field::kBlockVoxels) * g->channels() * sizeof(float);
   for (const FieldBlock& b : u.blocks) {
-    if (b.level < 0 || b.level >= g.numLevels() || b.data.size() != bytes ||
+    if (b.level < 0 || b.level >= g->numLevels() || b.data.size() != bytes ||
         b.index.cwiseAbs().maxCoeff() > Field::kMaxBlockIndex) {
       *error = "field update " + std::to_string(u.version) + ": block (level " +
                std::to_string(b.level) + ", " + std::to_string(b.data.size()) +
-               " bytes) does not fit the layout (" + std::to_string(g.numLevels()) + " levels, " +
+               " bytes) does not fit the layout (" + std::to_string(g->numLevels()) + " levels, " +
                std::to_string(bytes) + " bytes per block)";
-      return ApplyResult::kInvalid;
+      return false;
     }
   }
+  return true;
+}
+
+void writeBlocks(const FieldUpdate& u, Field* replica) {
+  for (const FieldBlock& b : u.blocks) {
+    const int id = replica->allocateBlock(b.level, b.index);
+    std::memcpy(replica->blockData(b.level, id), b.data.data(), b.data.size());
+  }
+}
+
+}  // namespace
+
+ApplyResult applyFieldUpdate(const FieldUpdate& u, Field* replica, std::string* error,
+                             GapPolicy gap_policy) {
+  checkHost();
+  ApplyResult result = ApplyResult::kApplied;
+  FieldGeometry g;
+  if (!checkUpdate(u, &g, error)) return ApplyResult::kInvalid;
   if (!u.is_snapshot) {
     if (replica->initialized() && replica->geometry() != g) {
       *error = "field update " + std::to_string(u.version) +
@@ -226,12 +243,21 @@ ApplyResult applyFieldUpdate(const FieldUpdate& u, Field* replica, std::string* 
   } else {
     *replica = Field(g);
   }
-  for (const FieldBlock& b : u.blocks) {
-    const int id = replica->allocateBlock(b.level, b.index);
-    std::memcpy(replica->blockData(b.level, id), b.data.data(), bytes);
-  }
+  writeBlocks(u, replica);
   replica->setVersion(u.version);
   return result;
+}
+
+ApplyResult repairFromSnapshotChunk(const FieldUpdate& chunk, Field* replica, std::string* error) {
+  checkHost();
+  FieldGeometry g;
+  if (!checkUpdate(chunk, &g, error)) return ApplyResult::kInvalid;
+  if (!replica->initialized() || replica->geometry() != g) {
+    *error = "snapshot chunk: geometry differs from the replica's";
+    return ApplyResult::kInvalid;
+  }
+  writeBlocks(chunk, replica);
+  return ApplyResult::kApplied;
 }
 
 }  // namespace radslam

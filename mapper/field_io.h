@@ -102,4 +102,10 @@ enum class GapPolicy {
 ApplyResult applyFieldUpdate(const FieldUpdate& update, Field* replica, std::string* error,
                              GapPolicy gap_policy = GapPolicy::kReject);
 
+/// Writes a snapshot chunk's blocks into a replica of the same geometry, its version unchanged:
+/// a replica that lost updates repairs the blocks of every chunk it gets, also of a snapshot
+/// that lost other chunks (at 5% loss, a snapshot of 60 chunks rarely arrives whole). kApplied,
+/// or kInvalid (replica unchanged) for a malformed chunk or another geometry.
+ApplyResult repairFromSnapshotChunk(const FieldUpdate& chunk, Field* replica, std::string* error);
+
 }  // namespace radslam

@@ -14,7 +14,27 @@ namespace radslam {
 
 namespace {
 constexpr int kFrameRenderStride = 10;  // every 10th non-keyframe is rendered at the end
+
+size_t payloadBytes(const FieldUpdate& u) {
+  size_t bytes = 0;
+  for (const FieldBlock& b : u.blocks) bytes += b.data.size();
+  return bytes;
+}
 }  // namespace
+
+// Paces messages at a mean rate: after each one, waits until the bytes so far fit the rate.
+class MapperNode::Pacer {
+ public:
+  explicit Pacer(double mb_per_s) : rate_(mb_per_s * 1e6) {}
+  void sent(size_t bytes) {
+    bytes_ += static_cast<double>(bytes);
+    std::this_thread::sleep_until(start_ + std::chrono::duration<double>(bytes_ / rate_));
+  }
+
+ private:
+  std::chrono::steady_clock::time_point start_ = std::chrono::steady_clock::now();
+  double rate_, bytes_ = 0;
+};
 
 MapperNode::MapperNode(Bus* bus, const MapperNodeParams& params, std::string out_dir)
     : bus_(bus),
@@ -38,6 +58,28 @@ void MapperNode::onKeyframe(const Keyframe& keyframe) {
   auto it = queue_.find(keyframe.keyframe_id);
   if (it == queue_.end() || it->second.version < keyframe.version)
     queue_[keyframe.keyframe_id] = keyframe;
+  max_keyframe_id_ = std::max(max_keyframe_id_, keyframe.keyframe_id);
+}
+
+void MapperNode::requestMissingKeyframes() {
+  // The tracker numbers keyframes 0, 1, 2, ...: an id below the highest seen that the mapper
+  // does not have was lost. Asked for again every kMissingRequestPeriodS, kMaxMissingRequests
+  // times at most per id (the tracker may no longer hold its images, or keeps rejecting it).
+  constexpr double kMissingRequestPeriodS = 2.0;
+  constexpr int kMaxMissingRequests = 3;
+  if (now() - last_missing_request_ < kMissingRequestPeriodS) return;
+  std::string ids;
+  for (int32_t id = 0; id < max_keyframe_id_; ++id) {
+    if (mapper_.keyframes().find(id) >= 0 || queue_.count(id)) continue;
+    int& asked = missing_requests_[id];
+    if (asked >= kMaxMissingRequests) continue;
+    ++asked;
+    ids += (ids.empty() ? "" : ",") + std::to_string(id);
+  }
+  if (ids.empty()) return;
+  last_missing_request_ = now();
+  std::cerr << "radslam-mapper: asking the tracker again for keyframes " << ids << "\n";
+  requestKeyframes("keyframes:" + ids);
 }
 
 void MapperNode::onPose(const PoseStamped& pose) {
@@ -60,6 +102,8 @@ void MapperNode::onControl(const Control& control) {
       snapshot_requested_ = true;
       break;
     case ControlCommand::kReset:
+      max_keyframe_id_ = -1;  // the tracker numbers its keyframes from 0 again
+      missing_requests_.clear();
       snapshot_.reset();  // its blocks are gone
       mapper_.reset();
       queue_.clear();
@@ -96,19 +140,17 @@ void MapperNode::resume(const std::string& checkpoint) {
             << " blocks\n";
 }
 
-void MapperNode::requestKeyframes() {
+void MapperNode::requestKeyframes(const std::string& which) {
   Control c;
   c.command = ControlCommand::kRepublish;
   c.target = "tracker";
-  c.argument = "keyframes";
+  c.argument = which;
   bus_->publish(channel::kControl, c);
 }
 
-void MapperNode::publishUpdate(bool flush) {
+void MapperNode::publishUpdate(Pacer* flush) {
   // Bounded messages: at most max_blocks_per_update changed blocks each; a flush sends them
-  // all, in as many messages as needed, paced at final_flush_mb_per_s.
-  const auto start = std::chrono::steady_clock::now();
-  double bytes = 0;
+  // all, in as many messages as needed, paced.
   do {
     // While a snapshot is sent, its chunks take the rest of the period's blocks.
     const int blocks = snapshot_ && !flush
@@ -116,14 +158,10 @@ void MapperNode::publishUpdate(bool flush) {
                            : params_.max_blocks_per_update;
     FieldUpdate u = mapper_.makeUpdate(delta_base_, blocks);
     if (u.blocks.empty()) return;
-    if (flush && bytes > 0) {
-      std::this_thread::sleep_until(
-          start + std::chrono::duration<double>(bytes / (params_.final_flush_mb_per_s * 1e6)));
-    }
     u.header.utime = wallClockMicros();
     bus_->publish(channel::kField, u);
     delta_base_ = u.version;
-    for (const FieldBlock& b : u.blocks) bytes += static_cast<double>(b.data.size());
+    if (flush) flush->sent(payloadBytes(u));
   } while (flush);
 }
 
@@ -141,16 +179,18 @@ void MapperNode::startSnapshot() {
   snapshot_.emplace(mapper_.makeSnapshotSender(++snapshot_seq_, snapshotChunkBlocks()));
 }
 
-void MapperNode::publishSnapshotChunk() {
+size_t MapperNode::publishSnapshotChunk() {
   FieldUpdate u = snapshot_->next();
   u.header.utime = wallClockMicros();
   bus_->publish(channel::kField, u);
+  const size_t bytes = payloadBytes(u);
   if (snapshot_->done()) {
     // The next delta covers every block changed since the snapshot was taken. Deltas stay
     // based no later than the last one, so replicas that missed the snapshot keep up too.
     delta_base_ = std::min(delta_base_, snapshot_->version());
     snapshot_.reset();
   }
+  return bytes;
 }
 
 void MapperNode::publishPoses() {
@@ -202,6 +242,7 @@ bool MapperNode::spinOnce(int timeout_ms) {
   const int handled = bus_->handle(can_train ? 0 : timeout_ms);
   if (handled < 0) return false;
   addQueuedKeyframes();
+  requestMissingKeyframes();
   if (mapper_.field().initialized() && mapper_.keyframes().size() > 0) {
     reporter_.setState(ProcessState::kRunning);
     BusyTimer::Scope busy(reporter_.busy());
@@ -231,7 +272,7 @@ bool MapperNode::spinOnce(int timeout_ms) {
   if (t - last_update_ >= params_.update_period_s) {
     last_update_ = t;
     if (snapshot_) publishSnapshotChunk();
-    publishUpdate(false);
+    publishUpdate(nullptr);
     publishPoses();
   }
   if (t - last_status_ >= params_.status_period_s) {
@@ -253,9 +294,23 @@ void MapperNode::finish() {
     }
   }
   train_s_ += now() - t0;
-  while (snapshot_) publishSnapshotChunk();
-  publishUpdate(true);
+  // Everything not yet sent, then a snapshot if one was asked for (a replica that lost an
+  // update is exact again only with one), paced: the sensors are quiet, but receivers' socket
+  // buffers are not bigger for it.
+  Pacer pacer(params_.final_flush_mb_per_s);
+  while (snapshot_) pacer.sent(publishSnapshotChunk());
+  publishUpdate(&pacer);
+  if (snapshot_requested_ && mapper_.field().initialized()) {
+    startSnapshot();
+    while (snapshot_) pacer.sent(publishSnapshotChunk());
+    publishUpdate(&pacer);
+  }
   publishPoses();
+  if (mapper_.field().initialized()) {
+    std::cerr << "radslam-mapper: final field version " << mapper_.field().version() << ", "
+              << mapper_.field().totalBlocks() << " blocks, " << mapper_.keyframes().size()
+              << " keyframes\n";
+  }
   if (!out_dir_.empty()) {
     try {
       const MapperOutputSummary s = writeMapperOutputs(

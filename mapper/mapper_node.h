@@ -31,9 +31,10 @@ class MapperNode {
   /// the file when it cannot be read (the mapper is then unchanged).
   void resume(const std::string& checkpoint);
 
-  /// Asks the tracker for every keyframe it still has (CONTROL REPUBLISH): those sent while
-  /// this mapper was not running. run() does it once at the start.
-  void requestKeyframes();
+  /// Asks the tracker for keyframes again (CONTROL REPUBLISH, argument "keyframes" = every one
+  /// it still holds, "keyframes:3,7" = those ids). run() asks for all once at the start (those
+  /// sent while this mapper was not running); lost ones are asked for as they are noticed.
+  void requestKeyframes(const std::string& which = "keyframes");
 
   /// Loops until a stop (signal or CONTROL STOP for "mapper" or all) or the end of a file://
   /// log, then finishes (final training, outputs). Returns the process exit code.
@@ -55,11 +56,14 @@ class MapperNode {
   void onPose(const PoseStamped& pose);
   void onControl(const Control& control);
   void addQueuedKeyframes();
-  void publishUpdate(bool flush);
+  void requestMissingKeyframes();
+  class Pacer;
+  /// flush: every changed block, paced by it (null = one bounded update).
+  void publishUpdate(Pacer* flush);
   /// Starts a snapshot (sent a chunk per update period) or, without a field yet, sends the
   /// empty one.
   void startSnapshot();
-  void publishSnapshotChunk();
+  size_t publishSnapshotChunk();  // returns the payload bytes sent
   int snapshotChunkBlocks() const { return std::max(1, params_.max_blocks_per_update * 3 / 4); }
   void publishPoses();
   void publishStatus();
@@ -83,6 +87,9 @@ class MapperNode {
   bool save_requested_ = false;
   std::chrono::steady_clock::time_point start_;
   double last_update_ = -1e9, last_status_ = -1e9, last_snapshot_ = -1e9, last_checkpoint_ = 0;
+  int32_t max_keyframe_id_ = -1;             // highest keyframe id received
+  std::map<int32_t, int> missing_requests_;  // times each missing id was asked for
+  double last_missing_request_ = -1e9;
   int64_t rays_ = 0;
   double train_s_ = 0;
   TrainStats last_stats_;

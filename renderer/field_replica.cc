@@ -24,6 +24,8 @@ ApplyResult FieldReplica::apply(const FieldUpdate& update, std::string* error) {
       return ApplyResult::kStale;
     }
     last_progress_s_ = now_s_;
+    // The chunk's blocks repair the live field now; the whole snapshot makes it exact.
+    if (field_.initialized()) repairFromSnapshotChunk(update, &field_, &why);
     switch (assembler_.add(update, &why)) {
       case SnapshotAssembler::Result::kIncomplete:
         return ApplyResult::kPartial;
@@ -33,9 +35,10 @@ ApplyResult FieldReplica::apply(const FieldUpdate& update, std::string* error) {
         waiting_snapshot_ = false;
         return ApplyResult::kApplied;
       case SnapshotAssembler::Result::kLost:
-        // A snapshot joined half-way (or one that lost a chunk): the next one is ours.
+        // A snapshot joined half-way (or one that lost a chunk): ask for the next one now (the
+        // mapper serves the requests of a period together).
         ++gaps_;
-        if (!waiting_snapshot_) requestSnapshot(why);
+        requestSnapshot(why);
         if (error) *error = why;
         return ApplyResult::kGap;
       case SnapshotAssembler::Result::kInvalid:

@@ -299,6 +299,11 @@ void RendererNode::writeFinal() {
     std::cerr << "radslam-renderer: no field received: no final renders\n";
     return;
   }
+  std::cerr << "radslam-renderer: final field version " << replica_.version() << ", "
+            << replica_.field().totalBlocks() << " blocks, "
+            << (replica_.waitingForSnapshot() ? "missed updates since the last snapshot"
+                                              : "every update applied")
+            << " (" << replica_.gaps() << " gaps)\n";
   try {
     if (params_.final_renders) {
       std::vector<ViewPose> views;

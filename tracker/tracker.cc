@@ -322,10 +322,11 @@ TrackerOutput Tracker::process(const Frame& frame) {
   return out;
 }
 
-std::vector<Keyframe> Tracker::republishKeyframes() {
+std::vector<Keyframe> Tracker::republishKeyframes(const std::vector<int>& ids) {
   Impl& s = *impl_;
   std::vector<Keyframe> out;
   for (int id = 0; id < s.graph.size(); ++id) {
+    if (!ids.empty() && std::find(ids.begin(), ids.end(), id) == ids.end()) continue;
     const KeyframeData& k = s.graph.keyframe(id);
     if (!k.color.empty() && !k.grey.empty()) out.push_back(s.keyframeMessage(id));
   }

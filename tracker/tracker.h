@@ -243,7 +243,8 @@ class Tracker {
   /// Every keyframe that still has its images (the window and the kept ones that left it, see
   /// loop_max_kept_images) at its current estimate, each with a new version: what a mapper
   /// that restarted asks for (CONTROL REPUBLISH).
-  std::vector<Keyframe> republishKeyframes();
+  /// `ids` empty = all of them.
+  std::vector<Keyframe> republishKeyframes(const std::vector<int>& ids = {});
 
   const TrackerParams& params() const { return params_; }
   TrackerMode mode() const { return mode_; }

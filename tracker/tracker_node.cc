@@ -1,8 +1,12 @@
 #include "tracker/tracker_node.h"
 
 #include <malloc.h>
+#include <algorithm>
 #include <chrono>
+#include <climits>
+#include <cstdlib>
 #include <iostream>
+#include <sstream>
 #include <stdexcept>
 #include <thread>
 
@@ -248,8 +252,27 @@ void TrackerNode::onControl(const Control& control) {
   if (control.command == ControlCommand::kStop) requestStop();
   if (control.command == ControlCommand::kReset) reset_requested_ = true;
   // Only when addressed: a REPUBLISH for all processes means the field (mapper).
-  if (control.command == ControlCommand::kRepublish && control.target == "tracker")
+  if (control.command == ControlCommand::kRepublish && control.target == "tracker") {
+    // "keyframes" = all; "keyframes:3,7" = those ids.
+    const std::string& arg = control.argument;
+    std::vector<int> ids;
+    if (arg.rfind("keyframes:", 0) == 0) {
+      std::stringstream list(arg.substr(10));
+      std::string id;
+      while (std::getline(list, id, ',')) {
+        char* end = nullptr;
+        const long v = std::strtol(id.c_str(), &end, 10);
+        if (end && !*end && !id.empty() && v >= 0 && v <= INT32_MAX) ids.push_back(int(v));
+      }
+      if (ids.empty()) return;  // nothing usable asked for
+    } else if (arg != "keyframes" && !arg.empty()) {
+      std::cerr << "radslam-tracker: warning: CONTROL REPUBLISH of '" << arg << "' ignored\n";
+      return;
+    }
+    republish_ids_.insert(republish_ids_.end(), ids.begin(), ids.end());
+    if (ids.empty()) republish_all_ = true;
     republish_requested_ = true;
+  }
 }
 
 void TrackerNode::handle(const Frame& frame) {
@@ -380,7 +403,10 @@ int TrackerNode::run() {
     }
     if (republish_requested_) {
       republish_requested_ = false;
-      std::vector<Keyframe> keyframes = tracker_->republishKeyframes();
+      std::vector<Keyframe> keyframes =
+          tracker_->republishKeyframes(republish_all_ ? std::vector<int>() : republish_ids_);
+      republish_all_ = false;
+      republish_ids_.clear();
       std::cerr << "radslam-tracker: re-publishing " << keyframes.size() << " keyframes\n";
       republish_queue_.assign(std::make_move_iterator(keyframes.begin()),
                               std::make_move_iterator(keyframes.end()));

@@ -75,7 +75,9 @@ class TrackerNode {
   int64_t last_index_ = -1;
   int64_t processed_ = 0, dropped_ = 0, rejected_ = 0;
   bool reset_requested_ = false;
-  bool republish_requested_ = false;  // CONTROL REPUBLISH: every keyframe again
+  bool republish_requested_ = false;  // CONTROL REPUBLISH: keyframes again
+  bool republish_all_ = false;        // ... every one, else republish_ids_
+  std::vector<int> republish_ids_;
   // Keyframes being re-published, one per kRepublishGapMs between frames (a burst would
   // overrun the receive buffers, the tracker's own included: it loses CAMERA frames).
   std::deque<Keyframe> republish_queue_;

@@ -355,6 +355,39 @@ TEST(Bus, HandleTimesOutWithNothingToDo) {
   EXPECT_EQ(statuses.got.size(), 4u);
 }
 
+TEST(Bus, FaultInjectionDropsTheGivenFractionOfAChannel) {
+  ASSERT_EQ(setenv("RADSLAM_DROP", "STATUS=0.05", 1), 0);
+  Bus bus("memq://", "", "tester");
+  unsetenv("RADSLAM_DROP");
+  Inbox<Status> statuses;
+  Inbox<Control> controls;
+  statuses.attach(bus, channel::kStatus);
+  controls.attach(bus, channel::kControl);
+  constexpr int kSent = 2000;
+  for (int i = 0; i < kSent; ++i) {
+    EXPECT_TRUE(bus.publish(channel::kStatus, sampleStatus()));
+    EXPECT_TRUE(bus.publish(channel::kControl, Control{}));
+    while (bus.handle(0) > 0) {
+    }
+  }
+  EXPECT_EQ(controls.got.size(), size_t{kSent});  // other channels untouched
+  const int lost = kSent - static_cast<int>(statuses.got.size());
+  EXPECT_EQ(lost, kSent / 20);  // the 10th, 30th, ...
+  EXPECT_EQ(statuses.got[8].header.seq, 8);
+  EXPECT_EQ(statuses.got[9].header.seq, 10);
+  // A lost message keeps its sequence number: receivers count the gaps.
+  int64_t gaps = statuses.got.front().header.seq;
+  for (size_t i = 1; i < statuses.got.size(); ++i)
+    gaps += statuses.got[i].header.seq - statuses.got[i - 1].header.seq - 1;
+  gaps += kSent - 1 - statuses.got.back().header.seq;
+  EXPECT_EQ(gaps, lost);
+  ASSERT_EQ(setenv("RADSLAM_DROP", "STATUS=2", 1), 0);
+  EXPECT_THROW(Bus("memq://", "", "tester"), std::runtime_error);
+  ASSERT_EQ(setenv("RADSLAM_DROP", "STATUS", 1), 0);
+  EXPECT_THROW(Bus("memq://", "", "tester"), std::runtime_error);
+  unsetenv("RADSLAM_DROP");
+}
+
 // Processes on one host: multicast on loopback, with keyframes large enough to
 // be fragmented (LCM splits messages over 65,499 bytes).
 TEST(Bus, UdpmDeliversFragmentedMessages) {

@@ -144,18 +144,30 @@ TEST(FieldReplica, ChunkedSnapshotAfterALostChunkAndAStalledRequest) {
   replica.retryStalledSnapshot(100.0, 15.0);
   EXPECT_EQ(replica.apply(u2, &error), ApplyResult::kGap);  // joined late
   ASSERT_EQ(requests.size(), 1u);
-  // The first snapshot loses a chunk: the replica keeps waiting, its request stands.
+  // The first snapshot loses a chunk: the replica asks for the next one at once.
   SnapshotSender lossy = mapper->makeSnapshotSender(1, 20);
   ASSERT_GT(lossy.chunkCount(), 2);
-  EXPECT_EQ(replica.apply(lossy.next(), &error), ApplyResult::kPartial);
+  const FieldUpdate first = lossy.next();
+  EXPECT_EQ(replica.apply(first, &error), ApplyResult::kPartial);
   lossy.next();
-  EXPECT_EQ(replica.apply(lossy.next(), &error), ApplyResult::kGap);
+  const FieldUpdate third = lossy.next();
+  EXPECT_EQ(replica.apply(third, &error), ApplyResult::kGap);
   EXPECT_TRUE(replica.waitingForSnapshot());
-  // No snapshot for longer than the stall time: asked again.
-  replica.retryStalledSnapshot(110.0, 15.0);
-  EXPECT_EQ(requests.size(), 1u);
-  replica.retryStalledSnapshot(130.0, 15.0);
   EXPECT_EQ(requests.size(), 2u);
+  // The chunks that arrived repaired the live field all the same.
+  for (const FieldUpdate* chunk : {&first, &third}) {
+    for (const FieldBlock& b : chunk->blocks) {
+      const int id = replica.field().findBlock(b.level, b.index.x(), b.index.y(), b.index.z());
+      ASSERT_GE(id, 0);
+      EXPECT_EQ(std::memcmp(replica.field().blockData(b.level, id), b.data.data(), b.data.size()),
+                0);
+    }
+  }
+  // No snapshot for longer than the stall time (a lost request): asked again.
+  replica.retryStalledSnapshot(110.0, 15.0);
+  EXPECT_EQ(requests.size(), 2u);
+  replica.retryStalledSnapshot(130.0, 15.0);
+  EXPECT_EQ(requests.size(), 3u);
   // A complete snapshot, then the update since its version: the mapper's field exactly.
   SnapshotSender sender = mapper->makeSnapshotSender(2, 20);
   ApplyResult last = ApplyResult::kPartial;
