@@ -58,6 +58,7 @@ class KeyframeStore {
   /// The gauge: the keyframe with the smallest id (its pose is never refined); -1 if empty.
   int gaugeIndex() const;
   void clear() { entries_.clear(); }
+  void erase(int i) { entries_.erase(entries_.begin() + i); }
   /// Appends an entry as is (checkpoint loading); replaces one with the same id.
   void restore(KeyframeEntry entry);
   int64_t arrivals() const { return arrivals_; }

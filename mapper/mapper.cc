@@ -289,6 +289,7 @@ void Mapper::seedSurface(const KeyframeEntry& entry, int first_new_block) {
 }
 
 KeyframeStore::InsertResult Mapper::addKeyframe(const Keyframe& keyframe) {
+  if (retired(keyframe.keyframe_id)) return KeyframeStore::InsertResult::kIgnored;
   KeyframeStore::InsertResult result = keyframes_.insert(keyframe);
   if (result != KeyframeStore::InsertResult::kIgnored && params_.fill_depth_holes) {
     // Holes get a guessed depth with infinite variance (the store keeps the normalised images).
@@ -309,7 +310,40 @@ KeyframeStore::InsertResult Mapper::addKeyframe(const Keyframe& keyframe) {
     initExposure(&entry);  // before its own blocks and seeds change the field
     allocateFor(entry);
   }
+  if (keyframes_.size() > params_.max_keyframes) retireMostRedundant(keyframe.keyframe_id);
   return result;
+}
+
+void Mapper::retireMostRedundant(int32_t newest_id) {
+  // Pose distance: camera-centre distance relative to the scene depth (fine voxel /
+  // fine_voxel_rel, the first keyframe's median depth) plus the rotation angle (rad).
+  const double depth = field_.initialized() && params_.fine_voxel_rel > 0
+                           ? field_.geometry().fineVoxelSize() / params_.fine_voxel_rel
+                           : 1.0;
+  auto distance = [&](const SE3& a, const SE3& b) {
+    return (a.translation() - b.translation()).norm() / depth +
+           a.quaternion().angularDistance(b.quaternion());
+  };
+  const int gauge = keyframes_.gaugeIndex();
+  int victim = -1;
+  double victim_distance = INFINITY;
+  for (int i = 0; i < keyframes_.size(); ++i) {
+    const KeyframeEntry& e = keyframes_.entry(i);
+    if (i == gauge || e.keyframe.keyframe_id == newest_id) continue;
+    double nearest = INFINITY;
+    for (int j = 0; j < keyframes_.size(); ++j)
+      if (j != i)
+        nearest = std::min(nearest, distance(e.T_world_cam, keyframes_.entry(j).T_world_cam));
+    // Of two equally redundant keyframes (a pair), the older goes.
+    if (nearest < victim_distance ||
+        (nearest == victim_distance && e.arrival < keyframes_.entry(victim).arrival)) {
+      victim = i;
+      victim_distance = nearest;
+    }
+  }
+  if (victim < 0) return;
+  retired_.insert(keyframes_.entry(victim).keyframe.keyframe_id);
+  keyframes_.erase(victim);
 }
 
 void Mapper::initExposure(KeyframeEntry* entry) const {
@@ -382,6 +416,7 @@ void Mapper::skipVersionsAfterRestart() {
 
 void Mapper::reset() {
   if (field_.initialized()) version_floor_ = std::max(version_floor_, field_.version());
+  retired_.clear();
   field_ = Field();
   keyframes_ = KeyframeStore();
   trainer_.reset();

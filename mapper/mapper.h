@@ -3,6 +3,7 @@
 #pragma once
 
 #include <cstdint>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -33,6 +34,10 @@ struct MapperParams {
   /// pixels deeper than this many times the keyframe's median depth are not allocated for
   /// (monocular depth outliers would otherwise allocate long empty segments).
   int max_fine_blocks = 60000;
+  /// Memory bound on keyframes (about 1.5 MB each at 320x240): past it, the keyframe whose
+  /// pose is closest to another's (the older of the pair; never the gauge or the newest) is
+  /// retired, and later versions of it are ignored.
+  int max_keyframes = 300;
   float alloc_max_depth_ratio = 4;
   /// Newly allocated fine voxels at a keyframe's depth start opaque (this raw density) with
   /// the pixel's colour, so training starts from the depth prior instead of fog; 0 = off.
@@ -113,6 +118,8 @@ class Mapper {
   const Field& field() const { return field_; }
   Field& field() { return field_; }
   const KeyframeStore& keyframes() const { return keyframes_; }
+  /// True for a keyframe retired by the max_keyframes bound.
+  bool retired(int32_t keyframe_id) const { return retired_.count(keyframe_id) > 0; }
   KeyframeStore& keyframes() { return keyframes_; }
   const Trainer& trainer() const { return trainer_; }
   Trainer& trainer() { return trainer_; }
@@ -122,6 +129,7 @@ class Mapper {
   void allocateFor(const KeyframeEntry& entry);
   void seedSurface(const KeyframeEntry& entry, int first_new_block);
   void initExposure(KeyframeEntry* entry) const;
+  void retireMostRedundant(int32_t newest_id);
 
   MapperParams params_;
   Field field_;
@@ -129,6 +137,7 @@ class Mapper {
   Trainer trainer_;
   VolumeRenderer renderer_;
   int64_t version_floor_ = 0;  // field versions stay monotonic across resets
+  std::set<int32_t> retired_;  // keyframe ids dropped by max_keyframes
   bool block_budget_warned_ = false;
 };
 

@@ -70,7 +70,7 @@ void MapperNode::requestMissingKeyframes() {
   if (now() - last_missing_request_ < kMissingRequestPeriodS) return;
   std::string ids;
   for (int32_t id = 0; id < max_keyframe_id_; ++id) {
-    if (mapper_.keyframes().find(id) >= 0 || queue_.count(id)) continue;
+    if (mapper_.keyframes().find(id) >= 0 || queue_.count(id) || mapper_.retired(id)) continue;
     int& asked = missing_requests_[id];
     if (asked >= kMaxMissingRequests) continue;
     ++asked;

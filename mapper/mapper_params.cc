@@ -46,6 +46,7 @@ MapperNodeParams loadMapperParams(const std::string& yaml_path,
   r.get("exposure_init_stride", &c.exposure_init_stride);
   getFloat(r, "alloc_hole_sigmas", &c.alloc_hole_sigmas);
   getFloat(r, "alloc_max_band_voxels", &c.alloc_max_band_voxels);
+  r.get("max_keyframes", &c.max_keyframes);
   // Training.
   TrainerParams& t = c.trainer;
   r.get("batch_rays", &t.batch_rays);

@@ -26,6 +26,7 @@ const char* kUsage = R"(usage: radslam-play --dataset KIND:PATH [options]
   --rate R           x sensor time; 0 = as fast as possible
   --lockstep         send frame k+1 only after the tracker acknowledged frame k
   --start N --end N --stride N
+  --loops N          play the range N times (indices and times continue; long-run tests)
   --camera-config F  intrinsics of camera:N (YAML: width height fx fy cx cy)
   --log-channels RE  log: channels to replay (default the input channels)
   --wait-for P,Q     before playing, wait (up to 30 s) for a STATUS from each process
@@ -42,6 +43,7 @@ PlayerParams loadParams(const std::string& path, const std::vector<std::string>&
   reader.get("start", &p.start);
   reader.get("end", &p.end);
   reader.get("stride", &p.stride);
+  reader.get("loops", &p.loops);
   reader.get("color_compression", &p.color_compression);
   reader.get("depth_wire_scale", &p.depth_wire_scale);
   reader.get("ground_truth", &p.ground_truth);
@@ -123,7 +125,7 @@ int run(int argc, char** argv) {
   if (source.empty()) throw std::runtime_error("--dataset is required\n" + cli.usage());
   // Command-line options override the "player" section of the config file.
   std::vector<std::string> overrides;
-  for (const char* key : {"rate", "start", "end", "stride"})
+  for (const char* key : {"rate", "start", "end", "stride", "loops"})
     if (cli.has(key)) overrides.push_back(std::string(key) + "=" + cli.get(key, ""));
   if (cli.has("lockstep"))
     overrides.push_back("lockstep=" +

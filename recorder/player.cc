@@ -35,6 +35,7 @@ Player::Player(PlayerParams params, PlayerSinks sinks)
   if (params_.stride < 1) throw std::invalid_argument("stride must be >= 1");
   if (params_.start < 0) throw std::invalid_argument("start must be >= 0");
   if (params_.rate < 0) throw std::invalid_argument("rate must be >= 0");
+  if (params_.loops < 1) throw std::invalid_argument("loops must be >= 1");
   if (params_.lockstep && !sinks_.wait_for_ack)
     throw std::invalid_argument("lock-step playback needs an acknowledgement source");
 }
@@ -69,62 +70,76 @@ PlayerStats Player::play(const DatasetReader& dataset) {
     throw std::invalid_argument(dataset.name() + ": start frame " + std::to_string(params_.start) +
                                 " is past the end (" + std::to_string(size) + " frames)");
   }
-  const int64_t planned = (end - params_.start + params_.stride - 1) / params_.stride;
+  const int64_t per_loop = (end - params_.start + params_.stride - 1) / params_.stride;
+  const int64_t planned = per_loop * params_.loops;
   const Trajectory& ground_truth = dataset.groundTruth();
   std::vector<ObjectPoseSample> object_truth;
   if (params_.ground_truth) object_truth = dataset.objectGroundTruth();
-  size_t gt_cursor = 0, object_cursor = 0;
 
   const double wall_start = wallSeconds();
   const double first_t = dataset.timestamp(static_cast<size_t>(params_.start));
-  for (int64_t i = params_.start; i < end; i += params_.stride) {
-    if (sinks_.should_stop && sinks_.should_stop()) break;
-    const double t = dataset.timestamp(static_cast<size_t>(i));
-    std::string error;
-    std::optional<Frame> frame = dataset.frame(static_cast<size_t>(i), &error);
-    waitUntil(t, first_t, wall_start);
-    if (!frame) {
-      std::cerr << "radslam-play: warning: skipping frame " << i << ": " << error << "\n";
-      ++stats.frames_skipped;
-      continue;
-    }
-    applyWireHints(&*frame);
-    sinks_.frame(*frame);
-    ++stats.frames_sent;
+  const int64_t last = params_.start + (per_loop - 1) * params_.stride;
+  // One loop's length in sensor time: first to last frame, plus a frame interval.
+  const double interval =
+      per_loop > 1 ? (dataset.timestamp(static_cast<size_t>(last)) - first_t) / double(per_loop - 1)
+                   : 0.0;
+  const double loop_s = dataset.timestamp(static_cast<size_t>(last)) - first_t + interval;
+  const int64_t loop_span = end - params_.start;
+  for (int loop = 0; loop < params_.loops; ++loop) {
+    const double shift_s = loop * loop_s;
+    const int64_t shift_index = loop * loop_span;
+    size_t gt_cursor = 0, object_cursor = 0;
+    for (int64_t i = params_.start; i < end; i += params_.stride) {
+      if (sinks_.should_stop && sinks_.should_stop()) break;
+      const double t = dataset.timestamp(static_cast<size_t>(i));
+      std::string error;
+      std::optional<Frame> frame = dataset.frame(static_cast<size_t>(i), &error);
+      waitUntil(t + shift_s, first_t, wall_start);
+      if (!frame) {
+        std::cerr << "radslam-play: warning: skipping frame " << i << ": " << error << "\n";
+        ++stats.frames_skipped;
+        continue;
+      }
+      frame->frame_index += shift_index;
+      frame->header.utime += static_cast<int64_t>(std::llround(shift_s * 1e6));
+      applyWireHints(&*frame);
+      sinks_.frame(*frame);
+      ++stats.frames_sent;
 
-    if (params_.ground_truth && sinks_.ground_truth && !ground_truth.empty()) {
-      // Stamps are increasing: advance to the sample nearest to t.
-      while (gt_cursor + 1 < ground_truth.size() &&
-             std::abs(ground_truth[gt_cursor + 1].t - t) <= std::abs(ground_truth[gt_cursor].t - t))
-        ++gt_cursor;
-      const StampedPose& sample = ground_truth[gt_cursor];
-      if (std::abs(sample.t - t) <= kMaxGroundTruthGapS) {
-        PoseStamped gt;
-        gt.header.utime = static_cast<int64_t>(std::llround(sample.t * 1e6));
-        gt.frame_index = i;
-        gt.state = TrackingState::kGroundTruth;
-        gt.T_world_cam = sample.T_world_cam;
-        sinks_.ground_truth(gt);
+      if (params_.ground_truth && sinks_.ground_truth && !ground_truth.empty()) {
+        // Stamps are increasing: advance to the sample nearest to t.
+        while (gt_cursor + 1 < ground_truth.size() && std::abs(ground_truth[gt_cursor + 1].t - t) <=
+                                                          std::abs(ground_truth[gt_cursor].t - t))
+          ++gt_cursor;
+        const StampedPose& sample = ground_truth[gt_cursor];
+        if (std::abs(sample.t - t) <= kMaxGroundTruthGapS) {
+          PoseStamped gt;
+          gt.header.utime = static_cast<int64_t>(std::llround((sample.t + shift_s) * 1e6));
+          gt.frame_index = i + shift_index;
+          gt.state = TrackingState::kGroundTruth;
+          gt.T_world_cam = sample.T_world_cam;
+          sinks_.ground_truth(gt);
+        }
       }
-    }
-    if (!object_truth.empty() && sinks_.ground_truth_objects) {
-      ObjectList objects;
-      objects.header.utime = frame->header.utime;
-      objects.frame_index = i;
-      while (object_cursor < object_truth.size() && object_truth[object_cursor].t < t - 1e-6)
-        ++object_cursor;
-      for (size_t k = object_cursor;
-           k < object_truth.size() && std::abs(object_truth[k].t - t) <= 1e-6; ++k) {
-        TrackedObject object;
-        object.object_id = object_truth[k].object_id;
-        object.class_id = object_truth[k].class_id;
-        object.T_world_object = object_truth[k].T_world_object;
-        objects.objects.push_back(object);
+      if (!object_truth.empty() && sinks_.ground_truth_objects) {
+        ObjectList objects;
+        objects.header.utime = frame->header.utime;
+        objects.frame_index = i + shift_index;
+        while (object_cursor < object_truth.size() && object_truth[object_cursor].t < t - 1e-6)
+          ++object_cursor;
+        for (size_t k = object_cursor;
+             k < object_truth.size() && std::abs(object_truth[k].t - t) <= 1e-6; ++k) {
+          TrackedObject object;
+          object.object_id = object_truth[k].object_id;
+          object.class_id = object_truth[k].class_id;
+          object.T_world_object = object_truth[k].T_world_object;
+          objects.objects.push_back(object);
+        }
+        if (!objects.objects.empty()) sinks_.ground_truth_objects(objects);
       }
-      if (!objects.objects.empty()) sinks_.ground_truth_objects(objects);
+      if (sinks_.progress) sinks_.progress(stats.frames_sent, planned);
+      acknowledge(i + shift_index, &stats);
     }
-    if (sinks_.progress) sinks_.progress(stats.frames_sent, planned);
-    acknowledge(i, &stats);
   }
   stats.wall_s = wallSeconds() - wall_start;
   return stats;

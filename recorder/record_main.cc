@@ -61,7 +61,8 @@ int run(int argc, char** argv) {
   const std::string prefix = cli.get("prefix", "");
   const bool progress = cli.getBool("progress", false);
   cli.finish();
-  const RecorderParams params = loadParams(config, mode);
+  RecorderParams params = loadParams(config, mode);
+  params.keyframe_exr_dir = out_dir + "/keyframes";
 
   installStopSignals();
   std::filesystem::create_directories(out_dir);

@@ -5,6 +5,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iomanip>
+#include <iostream>
 #include <sstream>
 #include <stdexcept>
 
@@ -68,6 +69,21 @@ std::string jsonKey(const std::string& key) {
   return out;
 }
 
+// DIR/<stamp>.exr: depth (m), sigma (m), inverse depth and its variance.
+void writeKeyframeExr(const std::string& dir, const Keyframe& keyframe) {
+  fs::create_directories(dir);
+  std::vector<std::pair<std::string, cv::Mat>> channels = {{"depth", keyframe.depth}};
+  if (!keyframe.depth_var.empty()) {
+    cv::Mat sigma;
+    cv::sqrt(cv::max(keyframe.depth_var, 0.0), sigma);
+    channels.emplace_back("sigma", sigma);
+  }
+  if (!keyframe.inv_depth.empty()) channels.emplace_back("inv_depth", keyframe.inv_depth);
+  if (!keyframe.inv_depth_var.empty())
+    channels.emplace_back("inv_depth_var", keyframe.inv_depth_var);
+  writeExr(dir + "/" + stampFileName(keyframe.header.utime) + ".exr", channels);
+}
+
 void writeObjectTracks(const std::string& path, const std::vector<ObjectList>& lists) {
   std::ofstream out(path);
   if (!out) throw std::runtime_error("cannot write " + path);
@@ -101,8 +117,26 @@ void RunRecorder::onGroundTruth(const PoseStamped& pose) {
 void RunRecorder::onKeyframe(const Keyframe& keyframe) {
   ++keyframe_messages_;
   auto it = keyframes_.find(keyframe.keyframe_id);
-  if (it == keyframes_.end() || it->second.version <= keyframe.version)
+  if (it != keyframes_.end() && it->second.version > keyframe.version) return;
+  if (params_.keyframe_exr_dir.empty() || !params_.export_keyframe_exr) {
     keyframes_[keyframe.keyframe_id] = keyframe;
+    return;
+  }
+  Keyframe& kept = keyframes_[keyframe.keyframe_id];
+  const bool first = kept.depth.empty() && it == keyframes_.end();
+  kept.header = keyframe.header;
+  kept.keyframe_id = keyframe.keyframe_id;
+  kept.version = keyframe.version;
+  kept.frame_index = keyframe.frame_index;
+  kept.T_world_cam = keyframe.T_world_cam;
+  if (keyframe.depth.empty()) return;
+  try {
+    writeKeyframeExr(params_.keyframe_exr_dir, keyframe);
+    if (first) ++exr_written_;
+  } catch (const std::exception& e) {
+    std::cerr << "radslam-record: warning: keyframe " << keyframe.keyframe_id << ": " << e.what()
+              << "\n";
+  }
 }
 
 void RunRecorder::onObjects(const ObjectList& objects) { objects_.push_back(objects); }
@@ -187,21 +221,11 @@ std::string RunRecorder::exportRun(const std::string& out_dir, double wall_s, in
   if (!ground_truth_objects_.empty())
     writeObjectTracks(out_dir + "/objects_groundtruth.txt", ground_truth_objects_);
 
-  int exr_written = 0;
-  if (params_.export_keyframe_exr) {
+  int exr_written = exr_written_;
+  if (params_.export_keyframe_exr && params_.keyframe_exr_dir.empty()) {
     for (const auto& [id, keyframe] : keyframes_) {
       if (keyframe.depth.empty()) continue;
-      fs::create_directories(out_dir + "/keyframes");
-      std::vector<std::pair<std::string, cv::Mat>> channels = {{"depth", keyframe.depth}};
-      if (!keyframe.depth_var.empty()) {
-        cv::Mat sigma;
-        cv::sqrt(cv::max(keyframe.depth_var, 0.0), sigma);
-        channels.emplace_back("sigma", sigma);
-      }
-      if (!keyframe.inv_depth.empty()) channels.emplace_back("inv_depth", keyframe.inv_depth);
-      if (!keyframe.inv_depth_var.empty())
-        channels.emplace_back("inv_depth_var", keyframe.inv_depth_var);
-      writeExr(out_dir + "/keyframes/" + stampFileName(keyframe.header.utime) + ".exr", channels);
+      writeKeyframeExr(out_dir + "/keyframes", keyframe);
       ++exr_written;
     }
   }

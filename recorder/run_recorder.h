@@ -21,6 +21,10 @@ struct RecorderParams {
   std::string mode = "mono";  // mono | rgbd | stereo (for "auto" and the summary)
   double max_dt_s = 0.02;     // timestamp association tolerance for evaluation
   bool export_keyframe_exr = true;
+  /// Where keyframe EXRs go as keyframes arrive (each newer version overwrites its file), so
+  /// that memory stays flat on long runs (only poses are kept) and a killed recorder leaves
+  /// them; "" = written by exportRun from the keyframes kept in memory (tests).
+  std::string keyframe_exr_dir;
 };
 
 struct ProcessSummary {
@@ -67,7 +71,9 @@ class RunRecorder {
   int64_t camera_frames_ = 0;
   std::map<int64_t, PoseStamped> poses_;         // latest per frame index
   std::map<int64_t, PoseStamped> ground_truth_;  // by utime
-  std::map<int32_t, Keyframe> keyframes_;        // latest version per id
+  std::map<int32_t, Keyframe> keyframes_;        // latest version per id (without images
+                                                 // when written on arrival)
+  int exr_written_ = 0;                          // keyframe EXRs written on arrival
   int64_t keyframe_messages_ = 0;
   std::vector<ObjectList> objects_;
   std::vector<ObjectList> ground_truth_objects_;

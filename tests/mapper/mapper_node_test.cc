@@ -272,6 +272,23 @@ TEST(MapperNode, ResumesFromACheckpointAsksForKeyframesAndResyncsReplicas) {
   EXPECT_TRUE(replica.sameContent(second.mapper().field()));
 }
 
+TEST(Mapper, KeyframeBoundRetiresTheOlderOfTheClosestPair) {
+  const SyntheticScene scene = smallRoom(30);
+  MapperParams params = nodeParams().core;
+  params.max_keyframes = 4;
+  Mapper mapper(params);
+  const int frames[5] = {0, 10, 20, 21, 29};
+  for (int i = 0; i < 5; ++i) mapper.addKeyframe(keyframeOf(scene, frames[i], i));
+  ASSERT_EQ(mapper.keyframes().size(), 4);
+  EXPECT_LT(mapper.keyframes().find(2), 0);  // frames 20 and 21 are the closest pair
+  for (int id : {0, 1, 3, 4}) EXPECT_GE(mapper.keyframes().find(id), 0) << id;
+  EXPECT_TRUE(mapper.retired(2));
+  Keyframe again = keyframeOf(scene, 20, 2);
+  again.version = 5;
+  EXPECT_EQ(mapper.addKeyframe(again), KeyframeStore::InsertResult::kIgnored);
+  EXPECT_EQ(mapper.keyframes().size(), 4);
+}
+
 TEST(MapperOutputs, NonKeyframeViewsTakeEveryTenthTrackedFrameWithTheNearestKeyframeCamera) {
   KeyframeStore store;
   SyntheticConfig config;

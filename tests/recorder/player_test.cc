@@ -101,7 +101,37 @@ TEST_F(PlayerTest, UnreadableFrameIsSkippedWithoutStopping) {
   EXPECT_EQ(stats.frames_skipped, 1);
 }
 
+TEST_F(PlayerTest, LoopsContinueIndicesAndTimes) {
+  auto dataset = openDataset("synthetic:" + dir_);
+  PlayerParams params;
+  params.rate = 0;
+  params.start = 1;
+  params.end = 5;
+  params.loops = 3;
+  std::vector<int64_t> indices, utimes;
+  std::vector<PoseStamped> truth;
+  PlayerSinks sinks;
+  sinks.frame = [&](const Frame& f) {
+    indices.push_back(f.frame_index);
+    utimes.push_back(f.header.utime);
+  };
+  sinks.ground_truth = [&](const PoseStamped& p) { truth.push_back(p); };
+  Player player(params, sinks);
+  EXPECT_EQ(player.play(*dataset).frames_sent, 12);
+  EXPECT_EQ(indices, (std::vector<int64_t>{1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12}));
+  // Times go on by one frame interval across the loop boundary.
+  const int64_t interval = utimes[1] - utimes[0];
+  for (size_t k = 1; k < utimes.size(); ++k) EXPECT_NEAR(utimes[k] - utimes[k - 1], interval, 2);
+  ASSERT_EQ(truth.size(), 12u);
+  EXPECT_EQ(truth[4].frame_index, 5);
+  EXPECT_NEAR((truth[4].T_world_cam.translation() - truth[0].T_world_cam.translation()).norm(), 0,
+              1e-12);  // the second loop starts where the first did
+}
+
 TEST_F(PlayerTest, RejectsBadParameters) {
+  PlayerParams loops;
+  loops.loops = 0;
+  EXPECT_THROW(Player(loops, PlayerSinks{}), std::invalid_argument);
   PlayerParams params;
   params.color_compression = "webp";
   EXPECT_THROW(Player(params, PlayerSinks{}), std::invalid_argument);

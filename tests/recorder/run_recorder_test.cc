@@ -25,9 +25,14 @@ SE3 groundTruthPose(int k) {
              Vec3(std::cos(s), 0.3 * std::sin(2 * s), 0.05 * k));
 }
 
-TEST(RunRecorderTest, ExportsTrajectoriesKeyframesAndEvaluation) {
+// exr_on_arrival: keyframe EXRs written as keyframes arrive (radslam-record), else at export.
+void exportsTrajectoriesKeyframesAndEvaluation(bool exr_on_arrival) {
+  const std::string out =
+      ::testing::TempDir() + "/run_recorder_test" + (exr_on_arrival ? "_arrival" : "");
+  std::filesystem::remove_all(out);
   RecorderParams params;
   params.mode = "mono";
+  if (exr_on_arrival) params.keyframe_exr_dir = out + "/keyframes";
   RunRecorder recorder(params);
   // Monocular estimate = ground truth seen through an unknown similarity.
   const SE3 T_est_world(SO3::exp(Vec3(0.3, -0.2, 0.1)), Vec3(1, 2, 3));
@@ -57,6 +62,9 @@ TEST(RunRecorderTest, ExportsTrajectoriesKeyframesAndEvaluation) {
   keyframe.version = 1;
   keyframe.depth.setTo(3.0f);
   recorder.onKeyframe(keyframe);
+  if (exr_on_arrival) {  // on disk already, before any export (a killed recorder keeps it)
+    EXPECT_FLOAT_EQ(readExrChannel(out + "/keyframes/1.000000.exr", "depth").at<float>(0, 0), 3.0f);
+  }
   Status tracker;
   tracker.process = "tracker";
   tracker.fps = 42;
@@ -64,9 +72,9 @@ TEST(RunRecorderTest, ExportsTrajectoriesKeyframesAndEvaluation) {
   tracker.values = {{"window", 8}};
   recorder.onStatus(tracker);
 
-  const std::string out = ::testing::TempDir() + "/run_recorder_test";
-  std::filesystem::remove_all(out);
   const std::string summary = recorder.exportRun(out, 1.5, 10, 1000);
+  EXPECT_NE(summary.find("keyframes              1 (1 depth/sigma EXR)"), std::string::npos)
+      << summary;
   EXPECT_NE(summary.find("ATE RMSE (sim3)"), std::string::npos) << summary;
 
   EXPECT_EQ(readTumTrajectory(out + "/trajectory.txt").size(), 30u);
@@ -86,6 +94,14 @@ TEST(RunRecorderTest, ExportsTrajectoriesKeyframesAndEvaluation) {
   // Sim3 alignment removes the similarity exactly.
   const size_t at = json.find("\"ate_rmse_m\": ");
   EXPECT_LT(std::stod(json.substr(at + 14)), 1e-6);
+}
+
+TEST(RunRecorderTest, ExportsTrajectoriesKeyframesAndEvaluation) {
+  exportsTrajectoriesKeyframesAndEvaluation(false);
+}
+
+TEST(RunRecorderTest, WritesKeyframeExrsAsTheyArrive) {
+  exportsTrajectoriesKeyframesAndEvaluation(true);
 }
 
 TEST(RunRecorderTest, SummaryWithoutGroundTruthSaysSo) {
