@@ -15,7 +15,8 @@
 namespace radslam {
 
 std::vector<FrameView> nonKeyframeViews(const std::map<int64_t, PoseStamped>& poses,
-                                        const KeyframeStore& keyframes, int stride) {
+                                        const KeyframeStore& keyframes, int stride,
+                                        size_t max_views) {
   std::vector<FrameView> views;
   if (keyframes.size() == 0 || stride < 1) return views;
   std::map<int64_t, int> by_frame;  // keyframe frame index -> store index
@@ -38,7 +39,10 @@ std::vector<FrameView> nonKeyframeViews(const std::map<int64_t, PoseStamped>& po
     v.camera = keyframes.entry(nearest->second).keyframe.camera;
     views.push_back(v);
   }
-  return views;
+  if (views.size() <= max_views) return views;
+  std::vector<FrameView> spread;
+  for (size_t k = 0; k < max_views; ++k) spread.push_back(views[k * views.size() / max_views]);
+  return spread;
 }
 
 namespace {

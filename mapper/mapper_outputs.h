@@ -39,9 +39,11 @@ struct MapperOutputSummary {
 /// those with frame_index % stride == 0 that are neither flagged as keyframes nor the frame of
 /// a stored keyframe, tracked (not lost or initialising), each with the camera of the stored
 /// keyframe nearest in frame index (keyframes carry the camera at training resolution).
-/// Empty when there are no keyframes. Sorted by frame index.
+/// Empty when there are no keyframes. Sorted by frame index. At most max_views, evenly
+/// spread (a long run would otherwise spend minutes rendering at its end).
 std::vector<FrameView> nonKeyframeViews(const std::map<int64_t, PoseStamped>& poses,
-                                        const KeyframeStore& keyframes, int stride = 10);
+                                        const KeyframeStore& keyframes, int stride = 10,
+                                        size_t max_views = 100);
 
 /// Writes into out_dir (created if needed): mapper.ckpt, map_points.ply, map_mesh.ply,
 /// mapper_keyframes.txt (TUM, refined poses), renders/rgb/<stem>.png (colour) and

@@ -138,6 +138,10 @@ bool RendererNode::waitingForSnapshot() const {
   return replica_.waitingForSnapshot();
 }
 
+namespace {
+constexpr int kDrainQuietPolls = 4;  // of 50 ms: the bus is quiet after 200 ms without messages
+}  // namespace
+
 void applyPreview(const RendererParams& params, MarchParams* mp) {
   mp->step_fine = static_cast<float>(params.preview_step_fine);
   mp->min_transmittance = static_cast<float>(params.preview_min_transmittance);
@@ -275,6 +279,13 @@ int RendererNode::run(bool linger) {
       log_ended = true;
       break;
     }
+  }
+  // What is still on its way (the mapper's final flush ends just before the stop) goes in
+  // first: until the bus has been quiet for a moment.
+  for (int quiet = 0; !log_ended && quiet < kDrainQuietPolls;) {
+    const int handled = spinOnce(50);
+    if (handled < 0) log_ended = true;
+    quiet = handled > 0 ? 0 : quiet + 1;
   }
   publishStatus(ProcessState::kIdle);
   viewer_.setRunEnded(true);

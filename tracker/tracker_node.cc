@@ -408,7 +408,7 @@ int TrackerNode::run() {
       republish_all_ = false;
       republish_ids_.clear();
       std::cerr << "radslam-tracker: re-publishing " << keyframes.size() << " keyframes\n";
-      republish_queue_.assign(std::make_move_iterator(keyframes.begin()),
+      republish_queue_.insert(republish_queue_.end(), std::make_move_iterator(keyframes.begin()),
                               std::make_move_iterator(keyframes.end()));
     }
     if (!republish_queue_.empty() &&

@@ -321,6 +321,15 @@ TEST(MapperOutputs, NonKeyframeViewsTakeEveryTenthTrackedFrameWithTheNearestKeyf
   EXPECT_EQ(views[1].frame_index, 40);
   EXPECT_EQ(views[1].camera.fx, b.camera.fx);
   EXPECT_TRUE(views[1].T_world_cam.matrix().isApprox(scene.cameraPose(40).matrix()));
+  // Past max_views, an evenly spread subset.
+  for (int i = 51; i < 1000; ++i) {
+    poses[i] = poses[10];
+    poses[i].frame_index = i;
+  }
+  const std::vector<FrameView> few = nonKeyframeViews(poses, store, 1, 10);
+  ASSERT_EQ(few.size(), 10u);
+  EXPECT_EQ(few.front().frame_index, 5);
+  EXPECT_GT(few.back().frame_index, 850);
 }
 
 TEST(MapperParams, LoadsTheMapperSectionAndRejectsUnknownKeys) {
