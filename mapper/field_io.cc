@@ -106,15 +106,19 @@ FieldUpdate makeFieldSnapshot(Field* field) {
 SnapshotSender::SnapshotSender(Field* field, int64_t snapshot_id, int max_blocks)
     : field_(field), snapshot_id_(snapshot_id), max_blocks_(std::max(1, max_blocks)) {
   checkHost();
-  field->commit();
+  // No commit here: blocks changed and not yet committed go out with their current content
+  // and stay changed, so bounded deltas commit them later (a commit of all of them would
+  // make the next delta the whole backlog).
   version_ = field->version();
   for (int l = 0; l < field->numLevels(); ++l)
     for (int b = 0; b < field->numBlocks(l); ++b) blocks_.emplace_back(l, b);
+  sent_at_.assign(blocks_.size(), 0);
   chunk_count_ = std::max<int>(1, (blocks_.size() + max_blocks_ - 1) / max_blocks_);
 }
 
 FieldUpdate SnapshotSender::next() {
   if (done()) throw std::logic_error("SnapshotSender::next: the snapshot was sent");
+  version_ = field_->version();
   FieldUpdate u = header(*field_);
   u.version = version_;
   u.base_version = 0;
@@ -123,9 +127,17 @@ FieldUpdate SnapshotSender::next() {
   u.chunk_index = sent_;
   u.chunk_count = chunk_count_;
   const size_t end = std::min(blocks_.size(), next_ + max_blocks_);
-  for (; next_ < end; ++next_)
+  for (; next_ < end; ++next_) {
     u.blocks.push_back(blockOf(*field_, blocks_[next_].first, blocks_[next_].second));
+    sent_at_[next_] = version_;
+  }
   ++sent_;
+  if (done()) {
+    for (size_t i = 0; i < blocks_.size(); ++i) {
+      const auto [l, b] = blocks_[i];
+      if (field_->blockVersion(l, b) > sent_at_[i]) field_->markChanged(l, b);
+    }
+  }
   return u;
 }
 

@@ -47,19 +47,25 @@ class SnapshotSender {
  public:
   SnapshotSender(Field* field, int64_t snapshot_id, int max_blocks);
   bool done() const { return next_ >= blocks_.size() && sent_ > 0; }
+  /// The field version when the last chunk so far was sent: a replica that assembled the whole
+  /// snapshot is at version() of its last chunk, so the deltas sent meanwhile, based on the
+  /// same version, follow it without a gap.
   int64_t version() const { return version_; }
   int chunkCount() const { return chunk_count_; }
-  /// The next chunk (is_snapshot, chunk_index, chunk_count, version = version()). Throws
-  /// std::logic_error when done().
+  /// The next chunk (is_snapshot, chunk_index, chunk_count, version = the field's now): the
+  /// blocks' current content. With the last chunk, blocks committed after their own chunk went
+  /// out are marked changed again, so that deltas bring the assembled replica up to date
+  /// (sending the snapshot does not hold the deltas back). Throws std::logic_error when done().
   FieldUpdate next();
 
  private:
-  const Field* field_;
+  Field* field_;
   int64_t snapshot_id_;
   int64_t version_;
   int max_blocks_;
   int chunk_count_;
   std::vector<std::pair<int, int>> blocks_;  // (level, block)
+  std::vector<int64_t> sent_at_;             // field version when each block's chunk went out
   size_t next_ = 0;
   int sent_ = 0;
 };

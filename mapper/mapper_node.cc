@@ -184,12 +184,9 @@ size_t MapperNode::publishSnapshotChunk() {
   u.header.utime = wallClockMicros();
   bus_->publish(channel::kField, u);
   const size_t bytes = payloadBytes(u);
-  if (snapshot_->done()) {
-    // The next delta covers every block changed since the snapshot was taken. Deltas stay
-    // based no later than the last one, so replicas that missed the snapshot keep up too.
-    delta_base_ = std::min(delta_base_, snapshot_->version());
-    snapshot_.reset();
-  }
+  // The deltas go on from delta_base_, the version of the last chunk (SnapshotSender::next
+  // marks what the assembled replica lacks as changed): no delta grows past the budget.
+  if (snapshot_->done()) snapshot_.reset();
   return bytes;
 }
 

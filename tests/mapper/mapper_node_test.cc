@@ -157,6 +157,8 @@ TEST(MapperNode, FollowsKeyframesPublishesUpdatesAndWritesOutputs) {
   std::string error;
   for (const FieldUpdate& u : updates) {
     if (u.is_snapshot) continue;
+    // Also right after the snapshot: a delta never outgrows the budget.
+    EXPECT_LE(static_cast<int>(u.blocks.size()), nodeParams().max_blocks_per_update);
     ASSERT_EQ(applyFieldUpdate(u, &replica, &error), ApplyResult::kApplied) << error;
   }
   EXPECT_TRUE(replica.sameContent(node.mapper().field()));
