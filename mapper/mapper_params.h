@@ -18,7 +18,7 @@ struct MapperNodeParams {
   int max_blocks_per_update = 250;
   // The final flush (every block not yet sent, at the end of a run, when the sensors are
   // quiet) is paced at this rate so that receivers' socket buffers do not overrun.
-  double final_flush_mb_per_s = 16.0;
+  double final_flush_mb_per_s = 6.0;
   double snapshot_min_period_s = 10.0;  // snapshot requests in between are served together
   double status_period_s = 0.5;         // STATUS heartbeat
   double final_training_s = 5.0;        // training burst after a stop request
