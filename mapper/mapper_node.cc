@@ -67,7 +67,9 @@ void MapperNode::requestMissingKeyframes() {
   // times at most per id (the tracker may no longer hold its images, or keeps rejecting it).
   constexpr double kMissingRequestPeriodS = 2.0;
   constexpr int kMaxMissingRequests = 3;
+  // The scan itself runs at most once a period too (this is called every training step).
   if (now() - last_missing_request_ < kMissingRequestPeriodS) return;
+  last_missing_request_ = now();
   std::string ids;
   for (int32_t id = 0; id < max_keyframe_id_; ++id) {
     if (mapper_.keyframes().find(id) >= 0 || queue_.count(id) || mapper_.retired(id)) continue;
@@ -77,7 +79,6 @@ void MapperNode::requestMissingKeyframes() {
     ids += (ids.empty() ? "" : ",") + std::to_string(id);
   }
   if (ids.empty()) return;
-  last_missing_request_ = now();
   std::cerr << "radslam-mapper: asking the tracker again for keyframes " << ids << "\n";
   requestKeyframes("keyframes:" + ids);
 }

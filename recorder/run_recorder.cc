@@ -122,8 +122,8 @@ void RunRecorder::onKeyframe(const Keyframe& keyframe) {
     keyframes_[keyframe.keyframe_id] = keyframe;
     return;
   }
-  Keyframe& kept = keyframes_[keyframe.keyframe_id];
-  const bool first = kept.depth.empty() && it == keyframes_.end();
+  const bool first = it == keyframes_.end();
+  Keyframe& kept = keyframes_[keyframe.keyframe_id];  // the pose only: the images go to disk
   kept.header = keyframe.header;
   kept.keyframe_id = keyframe.keyframe_id;
   kept.version = keyframe.version;
