@@ -33,7 +33,11 @@ RecorderParams loadParams(const std::string& path, const std::string& mode) {
   reader.get("mode", &p.mode);
   reader.get("max_dt_s", &p.max_dt_s);
   reader.get("export_keyframe_exr", &p.export_keyframe_exr);
+  reader.get("max_log_mb", &p.max_log_mb);
+  reader.get("min_free_disk_mb", &p.min_free_disk_mb);
   reader.finish();
+  if (!(p.max_log_mb >= 0) || !(p.min_free_disk_mb >= 0))
+    throw std::runtime_error("recorder: max_log_mb and min_free_disk_mb must be >= 0");
   std::cerr << "radslam-record: parameters from " << reader.source() << "\n" << reader.dump();
   return p;
 }
@@ -72,16 +76,19 @@ int run(int argc, char** argv) {
   RunRecorder recorder(params);
   StatusReporter reporter("recorder");
 
+  LogGuard log_guard(params, log_path);
   auto is = [&](const std::string& channel, const char* base) {
     return channel == bus.fullChannel(base);
   };
   bus.subscribeRaw(
       ".*", [&](const std::string& ch, int64_t recv_utime, const uint8_t* data, size_t size) {
         BusyTimer::Scope busy(reporter.busy());
-        log.write(recv_utime, ch, data, size);
-        // Into the kernel at once: a recorder killed (SIGKILL, OOM) loses no event it wrote.
-        // One write(2) per event; the receive path already costs more syscalls than that.
-        log.flush();
+        if (log_guard.admits(log.bytesWritten(), size)) {
+          log.write(recv_utime, ch, data, size);
+          // Into the kernel at once: a recorder killed (SIGKILL, OOM) loses no event it wrote.
+          // One write(2) per event; the receive path already costs more syscalls than that.
+          log.flush();
+        }
         recorder.onMessage(ch, recv_utime, size);
         reporter.itemHandled();
         if (is(ch, channel::kCamera)) {
@@ -126,6 +133,7 @@ int run(int argc, char** argv) {
     }
     const double now = elapsed();
     if (now - last_status > 0.5) {
+      if (!log_guard.why().empty()) reporter.setError(log_guard.why());
       reporter.setState(ProcessState::kRunning);
       reporter.setValue("log_events", static_cast<double>(log.eventsWritten()));
       reporter.setValue("log_mb", static_cast<double>(log.bytesWritten()) / 1e6);

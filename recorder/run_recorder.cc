@@ -104,6 +104,27 @@ void writeObjectTracks(const std::string& path, const std::vector<ObjectList>& l
 
 }  // namespace
 
+bool LogGuard::admits(int64_t written, size_t bytes) {
+  constexpr int64_t kDiskCheckBytes = 16'000'000;
+  if (!why_.empty()) return false;
+  std::ostringstream reason;
+  if (params_.max_log_mb > 0 &&
+      static_cast<double>(written) + static_cast<double>(bytes) > params_.max_log_mb * 1e6) {
+    reason << "it reached max_log_mb = " << params_.max_log_mb;
+  } else if (written >= next_disk_check_) {
+    next_disk_check_ = written + kDiskCheckBytes;
+    std::error_code ec;
+    const std::filesystem::space_info space = std::filesystem::space(path_, ec);
+    if (!ec && static_cast<double>(space.available) < params_.min_free_disk_mb * 1e6)
+      reason << "its disk has " << space.available / 1000000
+             << " MB left (min_free_disk_mb = " << params_.min_free_disk_mb << ")";
+  }
+  if (reason.str().empty()) return true;
+  why_ = path_ + " stops growing here: " + reason.str();
+  std::cerr << "radslam-record: warning: " << why_ << "\n";
+  return false;
+}
+
 RunRecorder::RunRecorder(RecorderParams params) : params_(std::move(params)) {}
 
 void RunRecorder::onCameraFrame(int64_t) { ++camera_frames_; }

@@ -25,6 +25,31 @@ struct RecorderParams {
   /// that memory stays flat on long runs (only poses are kept) and a killed recorder leaves
   /// them; "" = written by exportRun from the keyframes kept in memory (tests).
   std::string keyframe_exr_dir;
+  /// The LCM log stops growing (a warning; the rest of the run folder is still written) past
+  /// max_log_mb (0 = no limit) or when the disk holding it has less than min_free_disk_mb
+  /// left: a long run at full rate writes about 1.7 MB per frame, and a full disk would cost
+  /// every process its final outputs.
+  double max_log_mb = 0;
+  double min_free_disk_mb = 1024;
+};
+
+/// Keeps the LCM log within max_log_mb and away from a full disk: the log ends before the
+/// event that would pass the size limit, or at the first check (every 16 MB written) that
+/// finds less than min_free_disk_mb free on the log's disk.
+class LogGuard {
+ public:
+  LogGuard(const RecorderParams& params, std::string path)
+      : params_(params), path_(std::move(path)) {}
+  /// True while an event of `bytes` may be written after `written` bytes; the first refusal
+  /// says why on stderr (and in why()), and every later call refuses.
+  bool admits(int64_t written, size_t bytes);
+  const std::string& why() const { return why_; }
+
+ private:
+  RecorderParams params_;
+  std::string path_;
+  int64_t next_disk_check_ = 0;
+  std::string why_;
 };
 
 struct ProcessSummary {

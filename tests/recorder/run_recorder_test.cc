@@ -132,5 +132,29 @@ TEST(RunRecorderTest, ReportsTrafficPerChannel) {
   EXPECT_NE(summary.find("FIELD"), std::string::npos) << summary;
 }
 
+TEST(LogGuardTest, StopsBeforeTheSizeLimitAndStaysStopped) {
+  RecorderParams params;
+  params.max_log_mb = 0.001;  // 1000 bytes
+  params.min_free_disk_mb = 0;
+  LogGuard guard(params, ::testing::TempDir());
+  EXPECT_TRUE(guard.admits(0, 600));
+  EXPECT_TRUE(guard.admits(600, 400));  // exactly at the limit
+  EXPECT_FALSE(guard.admits(1000, 1));
+  EXPECT_NE(guard.why().find("max_log_mb"), std::string::npos) << guard.why();
+  EXPECT_FALSE(guard.admits(0, 1));  // the log ended: no later event goes in
+}
+
+TEST(LogGuardTest, StopsWhenTheDiskRunsLow) {
+  RecorderParams params;
+  params.min_free_disk_mb = 1e15;  // more than any disk has
+  LogGuard guard(params, ::testing::TempDir());
+  EXPECT_FALSE(guard.admits(0, 10));
+  EXPECT_NE(guard.why().find("min_free_disk_mb"), std::string::npos) << guard.why();
+  params.min_free_disk_mb = 0;
+  LogGuard relaxed(params, ::testing::TempDir());
+  EXPECT_TRUE(relaxed.admits(0, 10));
+  EXPECT_TRUE(relaxed.why().empty());
+}
+
 }  // namespace
 }  // namespace radslam
