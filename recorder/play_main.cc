@@ -26,7 +26,8 @@ const char* kUsage = R"(usage: radslam-play --dataset KIND:PATH [options]
   --rate R           x sensor time; 0 = as fast as possible
   --lockstep         send frame k+1 only after the tracker acknowledged frame k
   --start N --end N --stride N
-  --loops N          play the range N times (indices and times continue; long-run tests)
+  --loops N          play the range N times, every other one backwards (indices and times
+                     go on; long-run tests)
   --camera-config F  intrinsics of camera:N (YAML: width height fx fy cx cy)
   --log-channels RE  log: channels to replay (default the input channels)
   --wait-for P,Q     before playing, wait (up to 30 s) for a STATUS from each process

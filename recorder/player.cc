@@ -1,5 +1,6 @@
 #include "recorder/player.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <iostream>
@@ -26,6 +27,15 @@ WireCompression parseCompression(const std::string& name) {
 // Ground truth is published at its own stamps: the sample nearest to each frame
 // (within 20 ms, as the TUM benchmark associates), so evaluation stays exact.
 constexpr double kMaxGroundTruthGapS = 0.02;
+
+// The sample of a time-sorted, non-empty trajectory nearest to t.
+const StampedPose* nearestSample(const Trajectory& trajectory, double t) {
+  auto next = std::lower_bound(trajectory.begin(), trajectory.end(), t,
+                               [](const StampedPose& p, double time) { return p.t < time; });
+  if (next == trajectory.end()) return &trajectory.back();
+  if (next != trajectory.begin() && t - std::prev(next)->t <= next->t - t) return &*std::prev(next);
+  return &*next;
+}
 
 }  // namespace
 
@@ -84,14 +94,19 @@ PlayerStats Player::play(const DatasetReader& dataset) {
       per_loop > 1 ? (dataset.timestamp(static_cast<size_t>(last)) - first_t) / double(per_loop - 1)
                    : 0.0;
   const double loop_s = dataset.timestamp(static_cast<size_t>(last)) - first_t + interval;
-  const int64_t loop_span = end - params_.start;
+  const double last_t = dataset.timestamp(static_cast<size_t>(last));
   for (int loop = 0; loop < params_.loops; ++loop) {
-    const double shift_s = loop * loop_s;
-    const int64_t shift_index = loop * loop_span;
-    size_t gt_cursor = 0, object_cursor = 0;
-    for (int64_t i = params_.start; i < end; i += params_.stride) {
+    // Odd loops play the range backwards: the camera turns round instead of jumping back to
+    // the start, which no tracker follows without relocalising.
+    const bool backwards = loop % 2 == 1;
+    for (int64_t step = 0; step < per_loop; ++step) {
       if (sinks_.should_stop && sinks_.should_stop()) break;
+      const int64_t i = params_.start + (backwards ? per_loop - 1 - step : step) * params_.stride;
+      // Increasing; the dataset's own index in the first loop.
+      const int64_t index = params_.start + step * params_.stride + loop * (end - params_.start);
       const double t = dataset.timestamp(static_cast<size_t>(i));
+      // Sensor time on the wire: the loop's start plus the time into the loop.
+      const double shift_s = loop * loop_s + (backwards ? last_t - t - (t - first_t) : 0.0);
       std::string error;
       std::optional<Frame> frame = dataset.frame(static_cast<size_t>(i), &error);
       waitUntil(t + shift_s, first_t, wall_start);
@@ -100,45 +115,42 @@ PlayerStats Player::play(const DatasetReader& dataset) {
         ++stats.frames_skipped;
         continue;
       }
-      frame->frame_index += shift_index;
+      frame->frame_index = index;
       frame->header.utime += static_cast<int64_t>(std::llround(shift_s * 1e6));
       applyWireHints(&*frame);
       sinks_.frame(*frame);
       ++stats.frames_sent;
 
       if (params_.ground_truth && sinks_.ground_truth && !ground_truth.empty()) {
-        // Stamps are increasing: advance to the sample nearest to t.
-        while (gt_cursor + 1 < ground_truth.size() && std::abs(ground_truth[gt_cursor + 1].t - t) <=
-                                                          std::abs(ground_truth[gt_cursor].t - t))
-          ++gt_cursor;
-        const StampedPose& sample = ground_truth[gt_cursor];
-        if (std::abs(sample.t - t) <= kMaxGroundTruthGapS) {
+        const StampedPose* sample = nearestSample(ground_truth, t);
+        if (std::abs(sample->t - t) <= kMaxGroundTruthGapS) {
           PoseStamped gt;
-          gt.header.utime = static_cast<int64_t>(std::llround((sample.t + shift_s) * 1e6));
-          gt.frame_index = i + shift_index;
+          const double dt = backwards ? t - sample->t : sample->t - t;  // from the frame, s
+          gt.header.utime = static_cast<int64_t>(std::llround((t + shift_s + dt) * 1e6));
+          gt.frame_index = index;
           gt.state = TrackingState::kGroundTruth;
-          gt.T_world_cam = sample.T_world_cam;
+          gt.T_world_cam = sample->T_world_cam;
           sinks_.ground_truth(gt);
         }
       }
       if (!object_truth.empty() && sinks_.ground_truth_objects) {
         ObjectList objects;
         objects.header.utime = frame->header.utime;
-        objects.frame_index = i + shift_index;
-        while (object_cursor < object_truth.size() && object_truth[object_cursor].t < t - 1e-6)
-          ++object_cursor;
-        for (size_t k = object_cursor;
-             k < object_truth.size() && std::abs(object_truth[k].t - t) <= 1e-6; ++k) {
+        objects.frame_index = index;
+        auto k = std::lower_bound(
+            object_truth.begin(), object_truth.end(), t - 1e-6,
+            [](const ObjectPoseSample& sample, double time) { return sample.t < time; });
+        for (; k != object_truth.end() && std::abs(k->t - t) <= 1e-6; ++k) {
           TrackedObject object;
-          object.object_id = object_truth[k].object_id;
-          object.class_id = object_truth[k].class_id;
-          object.T_world_object = object_truth[k].T_world_object;
+          object.object_id = k->object_id;
+          object.class_id = k->class_id;
+          object.T_world_object = k->T_world_object;
           objects.objects.push_back(object);
         }
         if (!objects.objects.empty()) sinks_.ground_truth_objects(objects);
       }
       if (sinks_.progress) sinks_.progress(stats.frames_sent, planned);
-      acknowledge(i + shift_index, &stats);
+      acknowledge(index, &stats);
     }
   }
   stats.wall_s = wallSeconds() - wall_start;

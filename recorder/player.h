@@ -21,8 +21,9 @@ struct PlayerParams {
   int start = 0;                // first frame index
   int end = -1;                 // one past the last frame index; -1 = to the end
   int stride = 1;
-  /// Plays [start, end) this many times (long-run tests): loop k shifts frame indices by k
-  /// times the span and sensor times by k times the duration plus one frame interval.
+  /// Plays [start, end) this many times (long-run tests), every other time backwards so that
+  /// the motion stays continuous: frame indices go on counting and sensor times go on by one
+  /// frame interval across each turn (loop k starts k times the duration plus an interval in).
   int loops = 1;
   /// Image encoding on the wire: "raw" (fastest: about 1 MB per 640x480 RGB-D
   /// frame), "png" (lossless, about 3x smaller, ~40 ms per frame to encode) or
