@@ -16,6 +16,7 @@
 #include "common/lcm_log.h"
 #include "common/types.h"
 #include "fuzz/dataset_layouts.h"
+#include "mapper/field_io.h"
 
 namespace {
 
@@ -139,6 +140,15 @@ void writeDecoderSeeds(const fs::path& out) {
   field.header = header(5000);
   field.version = 4;
   writeMessage(out / "decode_field", "field_empty", field);
+  // Updates a replica applies: two blocks of a small field, raw and compressed.
+  Field small(FieldGeometry::make(0.05, 2, 2, 0, -4.f));
+  small.allocateBlock(0, Eigen::Vector3i(1, 2, 3));
+  small.allocateBlock(1, Eigen::Vector3i(0, -1, 0));
+  FieldUpdate blocks = makeFieldUpdate(&small, 0);
+  blocks.version = 5;
+  writeMessage(out / "field_apply", "field_raw", blocks);
+  encodeFieldUpdate(FieldEncoding::kZstd, &blocks);
+  writeMessage(out / "field_apply", "field_zstd", blocks);
 
   RenderRequest request;
   request.header = header(6000);

@@ -480,7 +480,7 @@ MarchParams Mapper::marchParams() const {
   return mp;
 }
 
-RenderImages Mapper::render(const SE3& T_world_cam, const CameraModel& camera) const {
+RenderImages Mapper::render(const SE3& T_world_cam, const CameraModel& camera, int threads) const {
   if (camera.width <= 0 || camera.height <= 0 || !(camera.fx > 0) || !(camera.fy > 0))
     throw std::invalid_argument("render: camera needs a positive size and focal lengths");
   if (!field_.initialized()) {
@@ -492,7 +492,8 @@ RenderImages Mapper::render(const SE3& T_world_cam, const CameraModel& camera) c
     out.weight = cv::Mat::zeros(camera.height, camera.width, CV_32FC1);
     return out;
   }
-  return renderer_.render(field_, T_world_cam, camera, marchParams(), params_.render_threads);
+  return renderer_.render(field_, T_world_cam, camera, marchParams(),
+                          threads > 0 ? threads : params_.render_threads);
 }
 
 }  // namespace radslam

@@ -101,7 +101,8 @@ class Mapper {
   SnapshotSender makeSnapshotSender(int64_t snapshot_id, int max_blocks);
 
   /// Renders any pinhole view (deterministic given the field).
-  RenderImages render(const SE3& T_world_cam, const CameraModel& camera) const;
+  /// threads: 0 = params().render_threads.
+  RenderImages render(const SE3& T_world_cam, const CameraModel& camera, int threads = 0) const;
   MarchParams marchParams() const;
 
   /// Checkpoint: field, optimiser state, keyframe poses and statistics, trainer counters and,

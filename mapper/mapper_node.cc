@@ -22,17 +22,26 @@ size_t payloadBytes(const FieldUpdate& u) {
 }
 }  // namespace
 
-// Paces messages at a mean rate: after each one, waits until the bytes so far fit the rate.
+// Paces messages at a mean rate: a message may go once the bytes before it fit the rate. Time
+// spent elsewhere earns at most kBurstS of credit, so that pauses do not end in bursts.
 class MapperNode::Pacer {
  public:
   explicit Pacer(double mb_per_s) : rate_(mb_per_s * 1e6) {}
+  bool ready() const { return Clock::now() >= next_; }
+  void wait() const { std::this_thread::sleep_until(next_); }
   void sent(size_t bytes) {
     bytes_ += static_cast<double>(bytes);
-    std::this_thread::sleep_until(start_ + std::chrono::duration<double>(bytes_ / rate_));
+    const Clock::time_point earliest = Clock::now() - std::chrono::duration_cast<Clock::duration>(
+                                                          std::chrono::duration<double>(kBurstS));
+    next_ = std::max(next_, earliest) + std::chrono::duration_cast<Clock::duration>(
+                                            std::chrono::duration<double>(bytes / rate_));
   }
+  double megabytes() const { return bytes_ * 1e-6; }
 
  private:
-  std::chrono::steady_clock::time_point start_ = std::chrono::steady_clock::now();
+  using Clock = std::chrono::steady_clock;
+  static constexpr double kBurstS = 0.25;
+  Clock::time_point next_ = Clock::now();
   double rate_, bytes_ = 0;
 };
 
@@ -149,29 +158,63 @@ void MapperNode::requestKeyframes(const std::string& which) {
   bus_->publish(channel::kControl, c);
 }
 
-void MapperNode::publishUpdate(Pacer* flush) {
-  // Bounded messages: at most max_blocks_per_update changed blocks each; a flush sends them
-  // all, in as many messages as needed, paced.
-  do {
-    // While a snapshot is sent, its chunks take the rest of the period's blocks.
-    const int blocks = snapshot_ && !flush
-                           ? std::max(1, params_.max_blocks_per_update - snapshotChunkBlocks())
-                           : params_.max_blocks_per_update;
-    FieldUpdate u = mapper_.makeUpdate(delta_base_, blocks);
-    if (u.blocks.empty()) return;
-    u.header.utime = wallClockMicros();
-    bus_->publish(channel::kField, u);
+void MapperNode::publishUpdate() {
+  // While a snapshot is sent, its chunks take the rest of the period's blocks.
+  const int blocks = snapshot_ ? std::max(1, params_.max_blocks_per_update - snapshotChunkBlocks())
+                               : params_.max_blocks_per_update;
+  FieldUpdate u = mapper_.makeUpdate(delta_base_, blocks);
+  if (u.blocks.empty()) return;
+  publishField(&u);
+  delta_base_ = u.version;
+}
+
+bool MapperNode::publishFlushMessage(size_t* bytes) {
+  // The snapshot in progress, every block not yet sent, then a snapshot if one was asked for
+  // (a replica that lost an update is exact again only with one) and what changed meanwhile.
+  if (snapshot_) {
+    *bytes = publishSnapshotChunk();
+    return true;
+  }
+  FieldUpdate u = mapper_.makeUpdate(delta_base_, params_.max_blocks_per_update);
+  if (!u.blocks.empty()) {
+    *bytes = publishField(&u);
     delta_base_ = u.version;
-    if (flush) flush->sent(payloadBytes(u));
-  } while (flush);
+    return true;
+  }
+  if (snapshot_requested_ && mapper_.field().initialized()) {
+    startSnapshot();
+    *bytes = 0;
+    return true;
+  }
+  return false;
+}
+
+void MapperNode::flushField(Pacer* pacer, bool to_end) {
+  while (flushing_) {
+    if (to_end) {
+      pacer->wait();
+    } else if (!pacer->ready()) {
+      return;
+    }
+    size_t bytes = 0;
+    flushing_ = publishFlushMessage(&bytes);
+    pacer->sent(bytes);
+    heartbeat();
+  }
+}
+
+size_t MapperNode::publishField(FieldUpdate* u) {
+  encodeFieldUpdate(params_.field_encoding, u);
+  u->header.utime = wallClockMicros();
+  bus_->publish(channel::kField, *u);
+  return payloadBytes(*u);
 }
 
 void MapperNode::startSnapshot() {
   snapshot_requested_ = false;
   if (!mapper_.field().initialized()) {
     FieldUpdate u = mapper_.makeSnapshot();
-    u.header.utime = wallClockMicros();
-    bus_->publish(channel::kField, u);
+    publishField(&u);
     return;
   }
   // One chunk per update period next to a smaller delta: a snapshot never outgrows the FIELD
@@ -182,9 +225,7 @@ void MapperNode::startSnapshot() {
 
 size_t MapperNode::publishSnapshotChunk() {
   FieldUpdate u = snapshot_->next();
-  u.header.utime = wallClockMicros();
-  bus_->publish(channel::kField, u);
-  const size_t bytes = payloadBytes(u);
+  const size_t bytes = publishField(&u);
   // The deltas go on from delta_base_, the version of the last chunk (SnapshotSender::next
   // marks what the assembled replica lacks as changed): no delta grows past the budget.
   if (snapshot_->done()) snapshot_.reset();
@@ -270,7 +311,7 @@ bool MapperNode::spinOnce(int timeout_ms) {
   if (t - last_update_ >= params_.update_period_s) {
     last_update_ = t;
     if (snapshot_) publishSnapshotChunk();
-    publishUpdate(nullptr);
+    publishUpdate();
     publishPoses();
   }
   if (t - last_status_ >= params_.status_period_s) {
@@ -278,6 +319,17 @@ bool MapperNode::spinOnce(int timeout_ms) {
     publishStatus();
   }
   return true;
+}
+
+int MapperNode::finalRenderThreads() const {
+  if (params_.final_render_threads > 0) return params_.final_render_threads;
+  return static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+}
+
+void MapperNode::heartbeat() {
+  if (now() - last_status_ < params_.status_period_s) return;
+  last_status_ = now();
+  publishStatus();
 }
 
 void MapperNode::finish() {
@@ -289,38 +341,34 @@ void MapperNode::finish() {
     while (now() - t0 < params_.final_training_s) {
       last_stats_ = mapper_.train(1);
       rays_ += last_stats_.rays;
+      heartbeat();
     }
   }
   train_s_ += now() - t0;
-  // Everything not yet sent, then a snapshot if one was asked for (a replica that lost an
-  // update is exact again only with one), paced: the sensors are quiet, but receivers' socket
-  // buffers are not bigger for it.
+  // The final flush is paced (the sensors are quiet, but receivers' socket buffers are not
+  // bigger for it) and goes on between the steps of the outputs, which only read the field:
+  // the end of a run takes the longer of the two, not their sum.
+  const double flush_t0 = now();
   Pacer pacer(params_.final_flush_mb_per_s);
-  while (snapshot_) pacer.sent(publishSnapshotChunk());
-  publishUpdate(&pacer);
-  if (snapshot_requested_ && mapper_.field().initialized()) {
-    startSnapshot();
-    while (snapshot_) pacer.sent(publishSnapshotChunk());
-    publishUpdate(&pacer);
-  }
+  flushing_ = mapper_.field().initialized();
+  flushField(&pacer, false);
   publishPoses();
-  if (mapper_.field().initialized()) {
-    std::cerr << "radslam-mapper: final field version " << mapper_.field().version() << ", "
-              << mapper_.field().totalBlocks() << " blocks, " << mapper_.keyframes().size()
-              << " keyframes\n";
-  }
   if (!out_dir_.empty()) {
     try {
       const MapperOutputSummary s = writeMapperOutputs(
           mapper_, out_dir_,
           {params_.checkpoint_images, params_.render_stride, params_.mesh_iso,
-           params_.mesh_max_faces},
+           params_.mesh_max_faces, finalRenderThreads(),
+           [&] {
+             flushField(&pacer, false);
+             heartbeat();
+           }},
           nonKeyframeViews(frame_poses_, mapper_.keyframes(), kFrameRenderStride));
-      std::cerr << "radslam-mapper: wrote " << s.checkpoint << ", " << s.cloud << " ("
-                << s.cloud_points << " points), " << s.mesh << " (" << s.mesh_faces
-                << " faces, lattice step " << s.mesh_stride << "), " << s.renders
-                << " keyframe and " << s.frame_renders << " frame renders, " << s.trajectory
-                << "\n";
+      std::cerr << "radslam-mapper: wrote " << s.checkpoint << " (" << s.checkpoint_s << " s), "
+                << s.mesh << " (" << s.mesh_faces << " faces, lattice step " << s.mesh_stride
+                << ", " << s.mesh_s << " s), " << s.renders << " keyframe and " << s.frame_renders
+                << " frame renders and " << s.cloud << " (" << s.cloud_points << " points; "
+                << s.renders_s << " s), " << s.trajectory << "\n";
     } catch (const std::exception& e) {
       std::cerr << "radslam-mapper: error: " << e.what() << "\n";
       reporter_.setError(e.what());
@@ -328,6 +376,13 @@ void MapperNode::finish() {
       publishStatus();
       throw;
     }
+  }
+  flushField(&pacer, true);
+  if (mapper_.field().initialized()) {
+    std::cerr << "radslam-mapper: final field version " << mapper_.field().version() << ", "
+              << mapper_.field().totalBlocks() << " blocks, " << mapper_.keyframes().size()
+              << " keyframes; final flush " << pacer.megabytes() << " MB in " << now() - flush_t0
+              << " s\n";
   }
   reporter_.setState(ProcessState::kDone);
   publishStatus();

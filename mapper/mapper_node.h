@@ -59,7 +59,11 @@ class MapperNode {
   void requestMissingKeyframes();
   class Pacer;
   /// flush: every changed block, paced by it (null = one bounded update).
-  void publishUpdate(Pacer* flush);
+  void publishUpdate();  // the delta of one update period
+  // The final flush, one message: false once everything went out.
+  bool publishFlushMessage(size_t* bytes);
+  // Flush messages while the pacer allows (to_end: until done, waiting for the pacer).
+  void flushField(Pacer* pacer, bool to_end);
   /// Starts a snapshot (sent a chunk per update period) or, without a field yet, sends the
   /// empty one.
   void startSnapshot();
@@ -67,6 +71,10 @@ class MapperNode {
   int snapshotChunkBlocks() const { return std::max(1, params_.max_blocks_per_update * 3 / 4); }
   void publishPoses();
   void publishStatus();
+  void heartbeat();
+  int finalRenderThreads() const;
+  size_t publishField(FieldUpdate* update);  // encoded as configured; payload bytes  //
+                                             // publishStatus at most once per status period
   void saveCheckpoint(const std::string& path);
   double now() const;
 
@@ -80,7 +88,8 @@ class MapperNode {
   std::map<int64_t, PoseStamped> frame_poses_;
   int64_t delta_base_ = 0;  // version of the last published delta update
   bool snapshot_requested_ = false;
-  std::optional<SnapshotSender> snapshot_;  // in progress
+  std::optional<SnapshotSender> snapshot_;
+  bool flushing_ = false;  // the final flush is under way
   int64_t snapshot_seq_ = 0;
   bool stop_ = false;
   std::string save_request_;  // checkpoint path asked for by CONTROL SAVE ("" = none)

@@ -1,6 +1,7 @@
 #include "mapper/mapper_outputs.h"
 
 #include <algorithm>
+#include <chrono>
 #include <cstdio>
 #include <filesystem>
 #include <iterator>
@@ -47,17 +48,22 @@ std::vector<FrameView> nonKeyframeViews(const std::map<int64_t, PoseStamped>& po
 
 namespace {
 
-// renders/rgb/<stem>.png and renders/depth/<stem>.exr of one view.
-void writeRender(const Mapper& mapper, const SE3& T_world_cam, const CameraModel& camera,
-                 int64_t utime, const std::filesystem::path& rgb_dir,
-                 const std::filesystem::path& depth_dir) {
-  const RenderImages images = mapper.render(T_world_cam, camera);
+double secondsSince(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+// renders/rgb/<stem>.png and renders/depth/<stem>.exr of one view; returns the images.
+RenderImages writeRender(const Mapper& mapper, const SE3& T_world_cam, const CameraModel& camera,
+                         int64_t utime, const std::filesystem::path& rgb_dir,
+                         const std::filesystem::path& depth_dir, int threads) {
+  RenderImages images = mapper.render(T_world_cam, camera, threads);
   const std::string stem = stampFileName(utime);
   const std::string png = (rgb_dir / (stem + ".png")).string();
   if (!cv::imwrite(png, toBgr8(images.color)))
     throw std::runtime_error("mapper outputs: cannot write " + png);
   writeExr((depth_dir / (stem + ".exr")).string(),
            {{"depth", images.depth}, {"sigma", images.sigma}});
+  return images;
 }
 
 }  // namespace
@@ -76,8 +82,14 @@ MapperOutputSummary writeMapperOutputs(const Mapper& mapper, const std::string& 
       throw std::runtime_error("mapper outputs: cannot create " + dir.string() + ": " +
                                ec.message());
   }
+  const auto progress = [&] {
+    if (options.progress) options.progress();
+  };
+  auto t0 = std::chrono::steady_clock::now();
   summary.checkpoint = (out / "mapper.ckpt").string();
   mapper.saveCheckpoint(summary.checkpoint, options.checkpoint_images);
+  summary.checkpoint_s = secondsSince(t0);
+  progress();
 
   // Keyframes in time order.
   const KeyframeStore& store = mapper.keyframes();
@@ -87,37 +99,46 @@ MapperOutputSummary writeMapperOutputs(const Mapper& mapper, const std::string& 
     return store.entry(a).keyframe.header.utime < store.entry(b).keyframe.header.utime;
   });
   Trajectory trajectory;
-  std::vector<std::pair<SE3, CameraModel>> views;
   for (int i : order) {
     const KeyframeEntry& e = store.entry(i);
     trajectory.push_back({e.keyframe.header.utime * 1e-6, e.T_world_cam});
-    views.emplace_back(e.T_world_cam, e.keyframe.camera);
   }
   summary.trajectory = (out / "mapper_keyframes.txt").string();
   writeTumTrajectory(summary.trajectory, trajectory);
 
-  const PointCloud cloud =
-      surfacePoints(mapper.field(), views, mapper.marchParams(), options.cloud_stride);
-  summary.cloud = (out / "map_points.ply").string();
-  writePly(summary.cloud, cloud);
-  summary.cloud_points = cloud.points.size();
+  t0 = std::chrono::steady_clock::now();
   const Mesh mesh = extractMeshWithin(mapper.field(), options.mesh_iso,
                                       static_cast<size_t>(options.mesh_max_faces));
   summary.mesh = (out / "map_mesh.ply").string();
   writePly(summary.mesh, mesh);
   summary.mesh_faces = mesh.faces.size();
   summary.mesh_stride = mesh.stride;
+  summary.mesh_s = secondsSince(t0);
+  progress();
 
+  // The keyframe renders also give the point cloud.
+  t0 = std::chrono::steady_clock::now();
+  SurfacePointCloud surface(mapper.field());
   for (int i : order) {
     const KeyframeEntry& e = store.entry(i);
-    writeRender(mapper, e.T_world_cam, e.keyframe.camera, e.keyframe.header.utime, rgb_dir,
-                depth_dir);
+    const RenderImages images =
+        writeRender(mapper, e.T_world_cam, e.keyframe.camera, e.keyframe.header.utime, rgb_dir,
+                    depth_dir, options.render_threads);
+    surface.add(e.T_world_cam, e.keyframe.camera, images, options.cloud_stride);
     ++summary.renders;
+    progress();
   }
+  const PointCloud cloud = surface.points();
+  summary.cloud = (out / "map_points.ply").string();
+  writePly(summary.cloud, cloud);
+  summary.cloud_points = cloud.points.size();
   for (const FrameView& v : frames) {
-    writeRender(mapper, v.T_world_cam, v.camera, v.utime, rgb_dir, depth_dir);
+    writeRender(mapper, v.T_world_cam, v.camera, v.utime, rgb_dir, depth_dir,
+                options.render_threads);
     ++summary.frame_renders;
+    progress();
   }
+  summary.renders_s = secondsSince(t0);
   return summary;
 }
 

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <string>
 #include <vector>
@@ -17,6 +18,10 @@ struct MapperOutputOptions {
   int cloud_stride = 2;  // pixels
   float mesh_iso = 1.f;
   int mesh_max_faces = 4000000;  // a coarser lattice beyond (extractMeshWithin)
+  int render_threads = 0;        // 0 = the mapper's render_threads
+  // Called between the steps (and between renders): the node keeps its heartbeat going, so
+  // that a supervisor tells a long end of run from a hung process.
+  std::function<void()> progress;
 };
 
 /// A view to render besides the keyframes: a tracked frame at its pose.
@@ -33,6 +38,8 @@ struct MapperOutputSummary {
   int frame_renders = 0;  // other frames
   size_t cloud_points = 0, mesh_faces = 0;
   int mesh_stride = 1;  // fine voxels
+  // Wall time of each step, s.
+  double checkpoint_s = 0, mesh_s = 0, renders_s = 0;  // renders_s includes the cloud
 };
 
 /// The frames to render besides the keyframes: of the tracked poses (latest per frame index),

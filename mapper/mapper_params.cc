@@ -91,6 +91,12 @@ MapperNodeParams loadMapperParams(const std::string& yaml_path,
   // Node.
   r.get("update_period_s", &p.update_period_s);
   r.get("max_blocks_per_update", &p.max_blocks_per_update);
+  std::string field_encoding = p.field_encoding == FieldEncoding::kZstd ? "zstd" : "raw";
+  r.get("field_encoding", &field_encoding);
+  if (field_encoding != "zstd" && field_encoding != "raw")
+    throw std::invalid_argument("mapper: field_encoding must be zstd or raw, not '" +
+                                field_encoding + "'");
+  p.field_encoding = field_encoding == "zstd" ? FieldEncoding::kZstd : FieldEncoding::kRaw;
   r.get("status_period_s", &p.status_period_s);
   r.get("snapshot_min_period_s", &p.snapshot_min_period_s);
   r.get("final_flush_mb_per_s", &p.final_flush_mb_per_s);
@@ -98,6 +104,7 @@ MapperNodeParams loadMapperParams(const std::string& yaml_path,
   r.get("checkpoint_images", &p.checkpoint_images);
   r.get("checkpoint_period_s", &p.checkpoint_period_s);
   r.get("render_stride", &p.render_stride);
+  r.get("final_render_threads", &p.final_render_threads);
   getFloat(r, "mesh_iso", &p.mesh_iso);
   r.get("mesh_max_faces", &p.mesh_max_faces);
   r.get("publish_poses", &p.publish_poses);
@@ -105,11 +112,13 @@ MapperNodeParams loadMapperParams(const std::string& yaml_path,
   t.depth_loss = parseDepthLoss(depth_loss);
   if (p.update_period_s <= 0 || p.status_period_s <= 0 || p.final_training_s < 0 ||
       p.render_stride < 1 || p.snapshot_min_period_s < 0 || p.max_blocks_per_update < 1 ||
-      !(p.final_flush_mb_per_s > 0) || !(p.checkpoint_period_s >= 0) || p.mesh_max_faces < 1)
+      !(p.final_flush_mb_per_s > 0) || !(p.checkpoint_period_s >= 0) || p.mesh_max_faces < 1 ||
+      p.final_render_threads < 0)
     throw std::invalid_argument(
         "mapper: update_period_s and status_period_s must be > 0, final_training_s >= 0, "
         "render_stride >= 1, snapshot_min_period_s >= 0, max_blocks_per_update >= 1, "
-        "final_flush_mb_per_s > 0, checkpoint_period_s >= 0, mesh_max_faces >= 1");
+        "final_flush_mb_per_s > 0, checkpoint_period_s >= 0, mesh_max_faces >= 1, "
+        "final_render_threads >= 0");
   if (dump) *dump = r.dump();
   if (source) *source = r.source();
   return p;

@@ -5,6 +5,7 @@
 #include <string>
 #include <vector>
 
+#include "mapper/field_io.h"
 #include "mapper/mapper.h"
 
 namespace radslam {
@@ -16,9 +17,11 @@ struct MapperNodeParams {
   // 2 MB/s, so that bursts do not overrun the receivers' socket buffers (a lost update costs
   // a snapshot).
   int max_blocks_per_update = 250;
+  FieldEncoding field_encoding = FieldEncoding::kZstd;  // "zstd" | "raw" (lossless either way)
   // The final flush (every block not yet sent, at the end of a run, when the sensors are
-  // quiet) is paced at this rate so that receivers' socket buffers do not overrun.
-  double final_flush_mb_per_s = 6.0;
+  // quiet) is paced at this rate, between the final outputs, so that receivers' socket buffers
+  // do not overrun and FIELD stays within what a network shared with the sensors can carry.
+  double final_flush_mb_per_s = 2.0;
   double snapshot_min_period_s = 10.0;  // snapshot requests in between are served together
   double status_period_s = 0.5;         // STATUS heartbeat
   double final_training_s = 5.0;        // training burst after a stop request
@@ -26,7 +29,9 @@ struct MapperNodeParams {
   // A checkpoint (OUT/mapper.ckpt) this often while running, for a restart to resume from
   // (s, 0 = only at the end; each is about 3 copies of the field).
   double checkpoint_period_s = 0;
-  int render_stride = 2;         // final point cloud: every n-th pixel of each keyframe
+  int render_stride = 2;  // final point cloud: every n-th pixel of each keyframe
+  // Threads of the final renders (0 = every core: the tracker is done by then).
+  int final_render_threads = 0;
   float mesh_iso = 1.f;          // final mesh: optical thickness per fine voxel
   int mesh_max_faces = 4000000;  // final mesh: a coarser lattice beyond (~100 MB PLY)
   bool publish_poses = true;     // refined keyframe poses on MAPPER_POSE

@@ -196,39 +196,36 @@ Mesh extractMeshWithin(const Field& field, float iso, size_t max_faces) {
   return mesh;
 }
 
-PointCloud surfacePoints(const Field& field, const std::vector<std::pair<SE3, CameraModel>>& views,
-                         const MarchParams& params, int stride) {
-  PointCloud cloud;
-  if (!field.initialized() || field.empty()) return cloud;
+SurfacePointCloud::SurfacePointCloud(const Field& field)
+    : inv_voxel_(field.initialized() ? field.invVoxelSize(field.numLevels() - 1) : 0.f) {}
+
+void SurfacePointCloud::add(const SE3& T_world_cam, const CameraModel& cam,
+                            const RenderImages& images, int stride) {
+  if (!(inv_voxel_ > 0)) return;
   stride = std::max(1, stride);
-  MarchParams mp = params;
-  mp.normalize_depth = true;
-  const VolumeRenderer renderer;
-  const float inv = field.invVoxelSize(field.numLevels() - 1);
-  struct Accum {
-    Eigen::Vector3f p = Eigen::Vector3f::Zero(), c = Eigen::Vector3f::Zero();
-    int n = 0;
-  };
-  std::unordered_map<uint64_t, int> slot;
-  std::vector<Accum> acc;
-  for (const auto& [T, cam] : views) {
-    for (int v = 0; v < cam.height; v += stride)
-      for (int u = 0; u < cam.width; u += stride) {
-        const Ray ray = makeRay(T, Vec3((u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, 1));
-        const RayOutput out = renderer.march(field, ray, mp);
-        if (out.weight < 0.5f || !(out.depth > 0)) continue;
-        const Eigen::Vector3f p = ray.origin + out.depth * ray.dir;
-        const Eigen::Vector3i cell = (p * inv).array().floor().cast<int>();
-        const uint64_t key = latticeKey(cell.x(), cell.y(), cell.z());
-        auto [it, added] = slot.emplace(key, static_cast<int>(acc.size()));
-        if (added) acc.emplace_back();
-        Accum& a = acc[it->second];
-        a.p += p;
-        a.c += Eigen::Vector3f(out.color[0], out.color[1], out.color[2]);
-        ++a.n;
-      }
+  for (int v = 0; v < cam.height; v += stride) {
+    const float* depth = images.depth.ptr<float>(v);
+    const float* weight = images.weight.ptr<float>(v);
+    const cv::Vec3f* color = images.color.ptr<cv::Vec3f>(v);
+    for (int u = 0; u < cam.width; u += stride) {
+      if (weight[u] < 0.5f || !(depth[u] > 0)) continue;
+      const Ray ray = makeRay(T_world_cam, Vec3((u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, 1));
+      const Eigen::Vector3f p = ray.origin + depth[u] * ray.dir;
+      const Eigen::Vector3i cell = (p * inv_voxel_).array().floor().cast<int>();
+      auto [it, added] =
+          slot_.emplace(latticeKey(cell.x(), cell.y(), cell.z()), static_cast<int>(acc_.size()));
+      if (added) acc_.emplace_back();
+      Accum& a = acc_[it->second];
+      a.p += p;
+      a.c += Eigen::Vector3f(color[u][0], color[u][1], color[u][2]);
+      ++a.n;
+    }
   }
-  for (const Accum& a : acc) {
+}
+
+PointCloud SurfacePointCloud::points() const {
+  PointCloud cloud;
+  for (const Accum& a : acc_) {
     cloud.points.push_back(a.p / a.n);
     cloud.colors.push_back(toRgb8(a.c / a.n));
   }

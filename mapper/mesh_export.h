@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <limits>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
 #include <Eigen/Core>
@@ -45,11 +46,26 @@ Mesh extractMesh(const Field& field, float iso = 1.f, int stride = 1,
 /// iso-surface at the fine lattice can have tens of millions of faces (gigabytes to extract).
 Mesh extractMeshWithin(const Field& field, float iso, size_t max_faces);
 
-/// Surface points of rendered views: every `stride`-th pixel whose ray is absorbed (weight >=
-/// 0.5) gives the point at its rendered depth with its rendered colour; one point per fine
-/// voxel is kept (colours averaged).
-PointCloud surfacePoints(const Field& field, const std::vector<std::pair<SE3, CameraModel>>& views,
-                         const MarchParams& params, int stride = 2);
+/// Surface points of rendered views: every `stride`-th pixel (in both directions) whose ray
+/// is absorbed (weight >= 0.5, depth normalised by it) gives the point at its rendered depth with
+/// its rendered colour; one point per fine voxel is kept (colours averaged). Fed with the renders
+/// a run writes anyway, so the cloud costs no rendering of its own.
+class SurfacePointCloud {
+ public:
+  explicit SurfacePointCloud(const Field& field);
+  void add(const SE3& T_world_cam, const CameraModel& camera, const RenderImages& images,
+           int stride);
+  PointCloud points() const;
+
+ private:
+  struct Accum {
+    Eigen::Vector3f p = Eigen::Vector3f::Zero(), c = Eigen::Vector3f::Zero();
+    int n = 0;
+  };
+  float inv_voxel_;  // 1 / fine voxel size, 1/m
+  std::unordered_map<uint64_t, int> slot_;
+  std::vector<Accum> acc_;
+};
 
 /// Binary little-endian PLY (x y z float, red green blue uchar; faces as vertex_indices).
 /// Throws std::runtime_error naming the file when it cannot be written.

@@ -26,8 +26,15 @@ CameraModel scaledCamera(const CameraModel& camera, int width) {
   return c;
 }
 
+std::vector<ViewPose> spreadViews(const std::vector<ViewPose>& views, size_t max_views) {
+  if (views.size() <= max_views) return views;
+  std::vector<ViewPose> spread;
+  for (size_t k = 0; k < max_views; ++k) spread.push_back(views[k * views.size() / max_views]);
+  return spread;
+}
+
 int writeFinalRenders(const FieldReplica& replica, const std::vector<ViewPose>& views,
-                      const std::string& dir) {
+                      const std::string& dir, const std::function<void()>& progress) {
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);
   if (ec) throw std::runtime_error(dir + ": cannot create the render folder: " + ec.message());
@@ -39,12 +46,13 @@ int writeFinalRenders(const FieldReplica& replica, const std::vector<ViewPose>& 
       throw std::runtime_error(stem + ".png: cannot write the render");
     writeExr(stem + ".exr", {{"depth", images.depth}, {"sigma", images.sigma}});
     ++written;
+    if (progress) progress();
   }
   return written;
 }
 
 int writeFlyThrough(const FieldReplica& replica, const std::vector<ViewPose>& views,
-                    const std::string& path, double fps) {
+                    const std::string& path, double fps, const std::function<void()>& progress) {
   if (views.empty()) return 0;
   const std::filesystem::path parent = std::filesystem::path(path).parent_path();
   std::error_code ec;
@@ -60,6 +68,7 @@ int writeFlyThrough(const FieldReplica& replica, const std::vector<ViewPose>& vi
     if (c.width != c0.width || c.height != c0.height) c = c0;  // one size per video
     writer.write(toBgr8(replica.render(v.T_world_cam, c).color));
     ++frames;
+    if (progress) progress();
   }
   return frames;
 }

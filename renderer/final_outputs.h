@@ -3,6 +3,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -21,15 +22,20 @@ struct ViewPose {
 /// The camera scaled to `width` pixels (same field of view); unchanged when width <= 0.
 CameraModel scaledCamera(const CameraModel& camera, int width);
 
+/// At most max_views of views, evenly spread (first and order kept).
+std::vector<ViewPose> spreadViews(const std::vector<ViewPose>& views, size_t max_views);
+
 /// Writes DIR/<timestamp>.png (colour) and DIR/<timestamp>.exr (channels "depth" and
 /// "sigma", m) for each view, creating DIR. Returns the number of views written; throws
-/// std::runtime_error naming the file when one cannot be written.
+/// std::runtime_error naming the file when one cannot be written. progress (if set) is called
+/// after each view.
 int writeFinalRenders(const FieldReplica& replica, const std::vector<ViewPose>& views,
-                      const std::string& dir);
+                      const std::string& dir, const std::function<void()>& progress = {});
 
 /// Renders the views in order into an MJPG .avi at fps. Returns the number of frames written;
 /// throws std::runtime_error naming the file when the writer cannot open it. No views: no file.
 int writeFlyThrough(const FieldReplica& replica, const std::vector<ViewPose>& views,
-                    const std::string& path, double fps);
+                    const std::string& path, double fps,
+                    const std::function<void()>& progress = {});
 
 }  // namespace radslam

@@ -41,6 +41,7 @@ void validate(const RendererParams& p) {
     throw std::invalid_argument("video_width must be in [1, 4096]");
   if (!(p.video_fps > 0)) throw std::invalid_argument("video_fps must be > 0");
   if (p.video_max_frames < 1) throw std::invalid_argument("video_max_frames must be >= 1");
+  if (p.final_max_renders < 1) throw std::invalid_argument("final_max_renders must be >= 1");
 }
 
 }  // namespace
@@ -66,6 +67,7 @@ RendererParams loadRendererParams(const std::string& yaml_path,
   r.get("follow_rate_hz", &p.follow_rate_hz);
   r.get("status_rate_hz", &p.status_rate_hz);
   r.get("final_renders", &p.final_renders);
+  r.get("final_max_renders", &p.final_max_renders);
   r.get("final_width", &p.final_width);
   r.get("video", &p.video);
   r.get("video_width", &p.video_width);
@@ -140,6 +142,7 @@ bool RendererNode::waitingForSnapshot() const {
 
 namespace {
 constexpr int kDrainQuietPolls = 4;  // of 50 ms: the bus is quiet after 200 ms without messages
+constexpr size_t kMaxPendingUpdates = 64;  // FIELD updates queued while renders hold the replica
 }  // namespace
 
 void applyPreview(const RendererParams& params, MarchParams* mp) {
@@ -159,22 +162,33 @@ RenderResult RendererNode::render(const RenderRequest& request, bool preview) co
 }
 
 void RendererNode::onField(const FieldUpdate& update) {
+  pending_updates_.push_back(update);
+  // A bounded queue: past it the bus thread waits for the renders (reader-preferring locks
+  // could otherwise keep it waiting while the queue grows).
+  applyPendingUpdates(pending_updates_.size() >= kMaxPendingUpdates);
+}
+
+void RendererNode::applyPendingUpdates(bool wait) {
+  if (pending_updates_.empty()) return;
+  std::unique_lock<std::shared_mutex> lock(field_mutex_, std::defer_lock);
+  if (wait) {
+    lock.lock();
+  } else if (!lock.try_lock()) {
+    return;
+  }
   BusyTimer::Scope busy(reporter_.busy());
-  std::string error;
-  ApplyResult result;
-  {
-    std::unique_lock<std::shared_mutex> lock(field_mutex_);
-    result = replica_.apply(update, &error);
-    const Field& f = replica_.field();
-    viewer_.setField(replica_.version(), f.initialized() ? f.totalBlocks() : 0,
-                     f.initialized() ? f.boundsMin() : Eigen::Vector3f::Zero(),
-                     f.initialized() ? f.boundsMax() : Eigen::Vector3f::Zero());
+  for (; !pending_updates_.empty(); pending_updates_.pop_front()) {
+    std::string error;
+    if (replica_.apply(pending_updates_.front(), &error) == ApplyResult::kInvalid) {
+      reporter_.setError(bus_->fullChannel(channel::kField) + ": " + error);
+      std::cerr << "radslam-renderer: warning: " << bus_->fullChannel(channel::kField)
+                << ": skipped update: " << error << "\n";
+    }
   }
-  if (result == ApplyResult::kInvalid) {
-    reporter_.setError(bus_->fullChannel(channel::kField) + ": " + error);
-    std::cerr << "radslam-renderer: warning: " << bus_->fullChannel(channel::kField)
-              << ": skipped update: " << error << "\n";
-  }
+  const Field& f = replica_.field();
+  viewer_.setField(replica_.version(), f.initialized() ? f.totalBlocks() : 0,
+                   f.initialized() ? f.boundsMin() : Eigen::Vector3f::Zero(),
+                   f.initialized() ? f.boundsMax() : Eigen::Vector3f::Zero());
 }
 
 void RendererNode::onRenderRequest(const RenderRequest& request) {
@@ -240,8 +254,12 @@ void RendererNode::followLoop() {
       rendered_seq = seq;
       rendered_version = version;
     }
-    // Sleep in short slices so that the destructor does not wait for a whole period.
-    while (!stop_follow_ && Clock::now() - t0 < period)
+    // At least as long as the render took: the replica is free half the time or more for
+    // updates, and the view costs at most half a core. In short slices, so that the
+    // destructor does not wait for a whole period.
+    const auto pause = std::max<Clock::duration>(
+        std::chrono::duration_cast<Clock::duration>(period), 2 * (Clock::now() - t0));
+    while (!stop_follow_ && Clock::now() - t0 < pause)
       std::this_thread::sleep_for(std::chrono::milliseconds(10));
   }
 }
@@ -260,10 +278,12 @@ void RendererNode::publishStatus(ProcessState state) {
 
 int RendererNode::spinOnce(int timeout_ms) {
   const int handled = bus_->handle(timeout_ms);
+  applyPendingUpdates(false);
   const int64_t now = wallClockMicros();
   {
-    std::unique_lock<std::shared_mutex> lock(field_mutex_);
-    replica_.retryStalledSnapshot(now * 1e-6, kSnapshotStallS);
+    // A periodic check: skipped while a render holds the replica (the bus thread never waits).
+    std::unique_lock<std::shared_mutex> lock(field_mutex_, std::try_to_lock);
+    if (lock) replica_.retryStalledSnapshot(now * 1e-6, kSnapshotStallS);
   }
   if (now - last_status_us_ >= static_cast<int64_t>(1e6 / params_.status_rate_hz)) {
     last_status_us_ = now;
@@ -287,6 +307,7 @@ int RendererNode::run(bool linger) {
     if (handled < 0) log_ended = true;
     quiet = handled > 0 ? 0 : quiet + 1;
   }
+  applyPendingUpdates(true);
   publishStatus(ProcessState::kIdle);
   viewer_.setRunEnded(true);
   writeFinal();
@@ -315,6 +336,13 @@ void RendererNode::writeFinal() {
             << (replica_.waitingForSnapshot() ? "missed updates since the last snapshot"
                                               : "every update applied")
             << " (" << replica_.gaps() << " gaps)\n";
+  // The heartbeat goes on, so that a supervisor sees a renderer at work, not a hung one.
+  const auto progress = [this] {
+    const int64_t now = wallClockMicros();
+    if (now - last_status_us_ < static_cast<int64_t>(1e6 / params_.status_rate_hz)) return;
+    last_status_us_ = now;
+    publishStatus(ProcessState::kIdle);
+  };
   try {
     if (params_.final_renders) {
       std::vector<ViewPose> views;
@@ -323,7 +351,8 @@ void RendererNode::writeFinal() {
         view.camera = scaledCamera(v.camera, params_.final_width);
         views.push_back(view);
       }
-      const int n = writeFinalRenders(replica_, views, out_dir_ + "/renders/final");
+      views = spreadViews(views, static_cast<size_t>(params_.final_max_renders));
+      const int n = writeFinalRenders(replica_, views, out_dir_ + "/renders/final", progress);
       std::cerr << "radslam-renderer: wrote " << n << " keyframe renders to " << out_dir_
                 << "/renders/final\n";
     }
@@ -339,7 +368,7 @@ void RendererNode::writeFinal() {
         views.push_back(view);
       }
       const std::string path = out_dir_ + "/renders/flythrough.avi";
-      const int n = writeFlyThrough(replica_, views, path, params_.video_fps);
+      const int n = writeFlyThrough(replica_, views, path, params_.video_fps, progress);
       std::cerr << "radslam-renderer: wrote " << n << " frames to " << path << "\n";
     }
   } catch (const std::exception& e) {

@@ -5,6 +5,7 @@
 
 #include <atomic>
 #include <cstdint>
+#include <deque>
 #include <map>
 #include <memory>
 #include <shared_mutex>
@@ -37,10 +38,11 @@ struct RendererParams {
   int follow_width = 320;     // pixels; the follow view's camera is scaled to this width
   double follow_rate_hz = 5;  // follow views per second at most
   double status_rate_hz = 2;
-  bool final_renders = true;  // renders/final/ at keyframe poses at the end
-  int final_width = 0;        // pixels, 0 = the keyframes' own size
-  bool video = true;          // fly-through video at the end
-  int video_width = 320;      // pixels
+  bool final_renders = true;    // renders/final/ at keyframe poses at the end
+  int final_max_renders = 100;  // keyframes evenly spread beyond (a long run has hundreds)
+  int final_width = 0;          // pixels, 0 = the keyframes' own size
+  bool video = true;            // fly-through video at the end
+  int video_width = 320;        // pixels
   double video_fps = 15;
   // Trajectory poses subsampled to at most this many (about 0.5 s each at 320 px on one core:
   // the launcher gives the renderer 120 s to finish).
@@ -80,6 +82,9 @@ class RendererNode {
 
  private:
   void onField(const FieldUpdate& update);
+  /// Applies the queued FIELD updates in order; without wait, only when no render holds the
+  /// replica (the bus thread must keep draining the socket while renders run).
+  void applyPendingUpdates(bool wait);
   void onRenderRequest(const RenderRequest& request);
   void onPose(const PoseStamped& pose);
   void onKeyframe(const Keyframe& keyframe);
@@ -92,6 +97,7 @@ class RendererNode {
   std::string out_dir_;
   mutable std::shared_mutex field_mutex_;  // replica_: written by the bus thread only
   FieldReplica replica_;
+  std::deque<FieldUpdate> pending_updates_;  // received, not yet applied (bus thread only)
   ViewerState viewer_;
   StatusReporter reporter_;
   std::map<int64_t, ViewPose> trajectory_;  // frame index -> tracked pose (bus thread only)

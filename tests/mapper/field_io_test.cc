@@ -184,6 +184,54 @@ TEST(FieldUpdates, StaleGapAndInvalidUpdates) {
   EXPECT_EQ(replica.version(), u3.version);  // unchanged by the rejected updates
 }
 
+TEST(FieldUpdates, ZstdEncodingIsLosslessSmallerAndCheckedBeforeUse) {
+  const SyntheticScene scene = tinyRoom();
+  Mapper mapper(smallParams());
+  mapper.addKeyframe(keyframeOf(scene, 0, 0));
+  mapper.addKeyframe(keyframeOf(scene, 10, 1));
+  mapper.train(3);
+  const FieldUpdate raw = mapper.makeUpdate(0);
+  ASSERT_FALSE(raw.blocks.empty());
+  FieldUpdate packed = raw;
+  encodeFieldUpdate(FieldEncoding::kZstd, &packed);
+  EXPECT_THROW(encodeFieldUpdate(FieldEncoding::kZstd, &packed), std::invalid_argument);
+  size_t raw_bytes = 0, packed_bytes = 0;
+  for (size_t i = 0; i < raw.blocks.size(); ++i) {
+    raw_bytes += raw.blocks[i].data.size();
+    packed_bytes += packed.blocks[i].data.size();
+  }
+  EXPECT_LT(packed_bytes * 2, raw_bytes);  // untouched voxels keep their initial values
+  FieldEncoding encoding = FieldEncoding::kRaw;
+  FieldGeometry g;
+  std::string error;
+  ASSERT_TRUE(parseFieldLayout(packed.layout, packed.voxel_size, &g, &error, &encoding)) << error;
+  EXPECT_EQ(encoding, FieldEncoding::kZstd);
+  EXPECT_TRUE(g == mapper.field().geometry());
+
+  Field from_raw, from_packed;
+  ASSERT_EQ(applyFieldUpdate(raw, &from_raw, &error), ApplyResult::kApplied) << error;
+  ASSERT_EQ(applyFieldUpdate(packed, &from_packed, &error), ApplyResult::kApplied) << error;
+  EXPECT_TRUE(from_packed.sameContent(from_raw));
+  EXPECT_TRUE(from_packed.sameContent(mapper.field()));
+
+  // Malformed blocks are rejected before the replica changes.
+  mapper.train(1);
+  FieldUpdate next = mapper.makeUpdate(packed.version);
+  ASSERT_FALSE(next.blocks.empty());
+  FieldUpdate raw_next = next;
+  encodeFieldUpdate(FieldEncoding::kZstd, &next);
+  FieldUpdate bad = next;
+  bad.blocks.back().data.resize(bad.blocks.back().data.size() / 2);  // truncated frame
+  EXPECT_EQ(applyFieldUpdate(bad, &from_packed, &error), ApplyResult::kInvalid);
+  EXPECT_NE(error.find("decompress"), std::string::npos) << error;
+  bad = next;
+  bad.blocks[0].data = raw_next.blocks[0].data;  // raw values where a frame belongs
+  EXPECT_EQ(applyFieldUpdate(bad, &from_packed, &error), ApplyResult::kInvalid);
+  EXPECT_NE(error.find("not a zstd frame"), std::string::npos) << error;
+  EXPECT_EQ(from_packed.version(), packed.version);
+  EXPECT_TRUE(from_packed.sameContent(from_raw));
+}
+
 TEST(FieldUpdates, LayoutRoundTripsTheGeometryExactly) {
   for (int sh : {0, 1}) {
     const FieldGeometry g = FieldGeometry::make(0.0123456789, 3, 2, sh, -4.6f);

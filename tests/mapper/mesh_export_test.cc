@@ -82,8 +82,9 @@ TEST(MeshExport, PointsLieOnTheRenderedSurface) {
   cam.cx = 19.5;
   cam.cy = 14.5;
   const SE3 T_world_cam(SO3(), Vec3(0.1, 0.2, -0.5));  // 1.5 m in front of the centre
-  MarchParams params;
-  const PointCloud cloud = surfacePoints(field, {{T_world_cam, cam}}, params, 1);
+  SurfacePointCloud surface(field);
+  surface.add(T_world_cam, cam, VolumeRenderer().render(field, T_world_cam, cam, MarchParams()), 1);
+  const PointCloud cloud = surface.points();
   ASSERT_GT(cloud.points.size(), 100u);
   for (size_t i = 0; i < cloud.points.size(); ++i) {
     EXPECT_NEAR((cloud.points[i] - kCentre).norm(), kRadius, 0.03f);
