@@ -108,6 +108,12 @@ std::optional<LogEvent> LogReader::next() {
   return out;
 }
 
+void LogReader::seek(int64_t offset) {
+  if (std::fseek(impl_->file, static_cast<long>(offset), SEEK_SET) != 0)
+    throw std::runtime_error("LCM log '" + impl_->path + "': cannot seek to byte " +
+                             std::to_string(offset));
+}
+
 struct LogWriter::Impl {
   explicit Impl(const std::string& path) : log(path, "w") {}
   lcm::LogFile log;
@@ -129,6 +135,11 @@ void LogWriter::write(int64_t utime, const std::string& channel, const uint8_t* 
   if (impl_->log.writeEvent(&event) != 0) throw std::runtime_error("cannot write LCM log event");
   ++events_;
   bytes_ += static_cast<int64_t>(size);
+}
+
+int64_t LogWriter::position() const {
+  FILE* f = impl_->log.getFilePtr();
+  return f ? static_cast<int64_t>(std::ftell(f)) : -1;
 }
 
 void LogWriter::flush() {

@@ -25,6 +25,8 @@ class LogReader {
   /// does a corrupt one (invalid lengths), with a warning on stderr. Lengths are
   /// checked against the bytes left in the file before anything is allocated.
   std::optional<LogEvent> next();
+  /// The next event is read from this byte offset (as LogWriter::position() gave it).
+  void seek(int64_t offset);
 
  private:
   struct Impl;
@@ -40,6 +42,8 @@ class LogWriter {
   /// Pushes buffered events to the kernel so a killed process leaves them.
   void flush();
   int64_t eventsWritten() const { return events_; }
+  /// Byte offset in the file where the next event starts.
+  int64_t position() const;
   int64_t bytesWritten() const { return bytes_; }
 
  private:

@@ -8,9 +8,11 @@
 
 #include "common/bus.h"
 #include "common/cli.h"
+#include "common/control.h"
 #include "common/lcm_log.h"
 #include "common/params.h"
 #include "common/process_stats.h"
+#include "recorder/keyframe_archive.h"
 #include "recorder/run_recorder.h"
 
 namespace radslam {
@@ -41,6 +43,8 @@ RecorderParams loadParams(const std::string& path, const std::string& mode) {
   std::cerr << "radslam-record: parameters from " << reader.source() << "\n" << reader.dump();
   return p;
 }
+
+constexpr double kRepublishGapS = 0.2;  // between re-published keyframes (as the tracker)
 
 template <class T>
 bool decodeOrWarn(const std::string& channel, const uint8_t* data, size_t size, T* msg) {
@@ -77,13 +81,16 @@ int run(int argc, char** argv) {
   StatusReporter reporter("recorder");
 
   LogGuard log_guard(params, log_path);
+  KeyframeArchive archive(log_path);
   auto is = [&](const std::string& channel, const char* base) {
     return channel == bus.fullChannel(base);
   };
   bus.subscribeRaw(
       ".*", [&](const std::string& ch, int64_t recv_utime, const uint8_t* data, size_t size) {
         BusyTimer::Scope busy(reporter.busy());
+        int64_t offset = -1;  // of the event in the log, -1 = not written
         if (log_guard.admits(log.bytesWritten(), size)) {
+          offset = log.position();
           log.write(recv_utime, ch, data, size);
           // Into the kernel at once: a recorder killed (SIGKILL, OOM) loses no event it wrote.
           // One write(2) per event; the receive path already costs more syscalls than that.
@@ -101,7 +108,10 @@ int run(int argc, char** argv) {
           if (decodeOrWarn(ch, data, size, &pose)) recorder.onGroundTruth(pose);
         } else if (is(ch, channel::kKeyframe)) {
           Keyframe keyframe;
-          if (decodeOrWarn(ch, data, size, &keyframe)) recorder.onKeyframe(keyframe);
+          if (decodeOrWarn(ch, data, size, &keyframe)) {
+            if (offset >= 0) archive.add(keyframe.keyframe_id, keyframe.version, offset);
+            recorder.onKeyframe(keyframe);
+          }
         } else if (is(ch, channel::kObjects)) {
           ObjectList objects;
           if (decodeOrWarn(ch, data, size, &objects)) recorder.onObjects(objects);
@@ -113,9 +123,20 @@ int run(int argc, char** argv) {
           if (decodeOrWarn(ch, data, size, &status)) recorder.onStatus(status);
         } else if (is(ch, channel::kControl)) {
           Control control;
-          if (decodeOrWarn(ch, data, size, &control) && control.command == ControlCommand::kStop &&
-              control.target == "recorder")
+          if (!decodeOrWarn(ch, data, size, &control)) return;
+          if (control.command == ControlCommand::kStop && control.target == "recorder")
             requestStop();
+          // Keyframes the mapper asks the tracker for: from the log once the tracker has
+          // finished (while it runs, it answers itself), or when asked directly.
+          if (control.command == ControlCommand::kRepublish &&
+              (control.target == "recorder" ||
+               (control.target == "tracker" &&
+                recorder.processState("tracker") == ProcessState::kDone))) {
+            std::vector<int32_t> ids;
+            if (parseKeyframeRequest(control.argument, &ids) && archive.request(ids) > 0)
+              std::cerr << "radslam-record: re-publishing keyframes from " << log_path << " ("
+                        << control.argument << ")\n";
+          }
         }
       });
 
@@ -124,7 +145,7 @@ int run(int argc, char** argv) {
   auto elapsed = [&] {
     return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   };
-  double last_line = 0, last_status = 0;
+  double last_line = 0, last_status = 0, last_republish = 0;
   while (!stopRequested()) {
     if (bus.handle(100) < 0) {
       // A file:// URL ends with its log: export what it held.
@@ -132,6 +153,16 @@ int run(int argc, char** argv) {
       throw std::runtime_error("LCM handle failed on " + url);
     }
     const double now = elapsed();
+    // One keyframe per kRepublishGapS: a burst would overrun the receivers' socket buffers.
+    if (archive.pending() && now - last_republish >= kRepublishGapS) {
+      last_republish = now;
+      std::string error;
+      if (std::optional<LogEvent> event = archive.next(&error)) {
+        bus.publishRaw(event->channel, event->data.data(), event->data.size());
+      } else {
+        std::cerr << "radslam-record: warning: cannot re-publish a keyframe: " << error << "\n";
+      }
+    }
     if (now - last_status > 0.5) {
       if (!log_guard.why().empty()) reporter.setError(log_guard.why());
       reporter.setState(ProcessState::kRunning);

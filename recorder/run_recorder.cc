@@ -168,6 +168,12 @@ void RunRecorder::onGroundTruthObjects(const ObjectList& objects) {
 
 void RunRecorder::onStatus(const Status& status) { statuses_[status.process] = status; }
 
+std::optional<ProcessState> RunRecorder::processState(const std::string& process) const {
+  auto it = statuses_.find(process);
+  if (it == statuses_.end()) return std::nullopt;
+  return it->second.state;
+}
+
 Trajectory RunRecorder::trajectory() const {
   Trajectory out;
   for (const auto& [index, pose] : poses_) {

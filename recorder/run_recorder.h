@@ -6,6 +6,7 @@
 
 #include <cstdint>
 #include <map>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -87,6 +88,8 @@ class RunRecorder {
                         int64_t log_bytes) const;
 
   int64_t cameraFrames() const { return camera_frames_; }
+  /// The state in the latest STATUS of a process, or nullopt when none was seen.
+  std::optional<ProcessState> processState(const std::string& process) const;
   Trajectory trajectory() const;
   Trajectory keyframeTrajectory() const;
   Trajectory groundTruth() const;

@@ -3,14 +3,12 @@
 #include <malloc.h>
 #include <algorithm>
 #include <chrono>
-#include <climits>
-#include <cstdlib>
 #include <iostream>
-#include <sstream>
 #include <stdexcept>
 #include <thread>
 
 #include "common/cli.h"
+#include "common/control.h"
 #include "common/params.h"
 #include "tracker/object_tracker.h"
 
@@ -253,20 +251,10 @@ void TrackerNode::onControl(const Control& control) {
   if (control.command == ControlCommand::kReset) reset_requested_ = true;
   // Only when addressed: a REPUBLISH for all processes means the field (mapper).
   if (control.command == ControlCommand::kRepublish && control.target == "tracker") {
-    // "keyframes" = all; "keyframes:3,7" = those ids.
-    const std::string& arg = control.argument;
-    std::vector<int> ids;
-    if (arg.rfind("keyframes:", 0) == 0) {
-      std::stringstream list(arg.substr(10));
-      std::string id;
-      while (std::getline(list, id, ',')) {
-        char* end = nullptr;
-        const long v = std::strtol(id.c_str(), &end, 10);
-        if (end && !*end && !id.empty() && v >= 0 && v <= INT32_MAX) ids.push_back(int(v));
-      }
-      if (ids.empty()) return;  // nothing usable asked for
-    } else if (arg != "keyframes" && !arg.empty()) {
-      std::cerr << "radslam-tracker: warning: CONTROL REPUBLISH of '" << arg << "' ignored\n";
+    std::vector<int32_t> ids;
+    if (!parseKeyframeRequest(control.argument, &ids)) {
+      std::cerr << "radslam-tracker: warning: CONTROL REPUBLISH of '" << control.argument
+                << "' ignored\n";
       return;
     }
     republish_ids_.insert(republish_ids_.end(), ids.begin(), ids.end());
