@@ -257,7 +257,7 @@ void Mapper::loadCheckpoint(const std::string& path) {
         for (int k = 0; k < 3; ++k) index[k] = r.get<int32_t>();
         const int64_t version = r.get<int64_t>();
         const bool changed = r.get<uint8_t>() != 0;
-        if (index.cwiseAbs().maxCoeff() > Field::kMaxBlockIndex) r.fail("bad block index");
+        if (!Field::blockIndexInRange(index)) r.fail("bad block index");
         if (field.allocateBlock(l, index) != static_cast<int>(b)) r.fail("duplicate block");
         field.restoreBlockState(l, b, version, changed);
       }

@@ -106,7 +106,7 @@ int Field::allocateBlock(int level, const Eigen::Vector3i& index) {
   Level& lv = levels_[level];
   const int existing = lv.find(index.x(), index.y(), index.z());
   if (existing >= 0) return existing;
-  if (index.cwiseAbs().maxCoeff() > kMaxBlockIndex)
+  if (!blockIndexInRange(index))
     throw std::out_of_range("field: block index out of range at level " + std::to_string(level) +
                             " (the map extends beyond 2^20 blocks from the origin)");
   const int id = static_cast<int>(lv.blocks.size());

@@ -61,6 +61,10 @@ class Field {
   static constexpr int kBlockVoxels = kBlockDim * kBlockDim * kBlockDim;
   /// Keys pack each block coordinate in 21 bits: |index| < 2^20 blocks per axis.
   static constexpr int kMaxBlockIndex = (1 << 20) - 1;
+  /// Every coordinate within +-kMaxBlockIndex (compared as they are: |INT_MIN| overflows).
+  static bool blockIndexInRange(const Eigen::Vector3i& index) {
+    return (index.array() >= -kMaxBlockIndex).all() && (index.array() <= kMaxBlockIndex).all();
+  }
   static constexpr int kMaxLevels = 4;
 
   Field() = default;

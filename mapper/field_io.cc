@@ -253,7 +253,7 @@ bool checkUpdate(const FieldUpdate& u, FieldGeometry* g, std::vector<const uint8
         zstd ? static_cast<size_t>(ZSTD_getFrameContentSize(b.data.data(), b.data.size()))
              : b.data.size();
     if (b.level < 0 || b.level >= g->numLevels() || size != bytes ||
-        b.index.cwiseAbs().maxCoeff() > Field::kMaxBlockIndex) {
+        !Field::blockIndexInRange(b.index)) {
       *error = "field update " + std::to_string(u.version) + ": block (level " +
                std::to_string(b.level) + ", " + std::to_string(b.data.size()) + " bytes" +
                (zstd ? ", not a zstd frame of " + std::to_string(bytes) + " bytes" : "") +

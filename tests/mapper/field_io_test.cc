@@ -175,6 +175,10 @@ TEST(FieldUpdates, StaleGapAndInvalidUpdates) {
   EXPECT_EQ(applyFieldUpdate(bad, &replica, &error), ApplyResult::kInvalid);
   bad = u3;
   bad.version += 10;
+  bad.blocks[0].index.x() = INT32_MIN;  // |INT_MIN| does not exist: compared as it is
+  EXPECT_EQ(applyFieldUpdate(bad, &replica, &error), ApplyResult::kInvalid);
+  bad = u3;
+  bad.version += 10;
   bad.block_dim = 16;
   EXPECT_EQ(applyFieldUpdate(bad, &replica, &error), ApplyResult::kInvalid);
   bad = u3;
