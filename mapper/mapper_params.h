@@ -13,9 +13,9 @@ namespace radslam {
 struct MapperNodeParams {
   MapperParams core;
   double update_period_s = 1.0;  // FIELD updates at most this often
-  // Bounds a FIELD message (about 8 KB per RGB block): 250 blocks a second keep FIELD near
-  // 2 MB/s, so that bursts do not overrun the receivers' socket buffers (a lost update costs
-  // a snapshot).
+  // Bounds a FIELD message (8 KB per RGB block raw, about 2 KB compressed): 250 blocks a second
+  // keep FIELD within 2 MB/s even raw, so that bursts do not overrun the receivers' socket
+  // buffers (a lost update costs a snapshot).
   int max_blocks_per_update = 250;
   FieldEncoding field_encoding = FieldEncoding::kZstd;  // "zstd" | "raw" (lossless either way)
   // The final flush (every block not yet sent, at the end of a run, when the sensors are
