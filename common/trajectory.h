@@ -57,4 +57,14 @@ std::string stampFileName(int64_t utime);
 /// Shortest decimal text that parses back to exactly `value`.
 std::string formatDouble(double value);
 
+/// At most max_items of items, evenly spread over them (the first kept, order kept): the
+/// views a run renders at its end, whatever its length.
+template <class T>
+std::vector<T> evenlySpread(const std::vector<T>& items, size_t max_items) {
+  if (items.size() <= max_items) return items;
+  std::vector<T> spread;
+  for (size_t k = 0; k < max_items; ++k) spread.push_back(items[k * items.size() / max_items]);
+  return spread;
+}
+
 }  // namespace radslam

@@ -46,12 +46,10 @@ FieldBlock blockOf(const Field& field, int level, int block) {
   return fb;
 }
 
-}  // namespace
-
-namespace {
 constexpr const char* kRawName = "f32le";
 constexpr const char* kZstdName = "f32le+zstd";
 constexpr int kZstdLevel = 1;  // the fastest: higher levels gain a few percent at 2-5x the time
+
 }  // namespace
 
 std::string fieldLayout(const FieldGeometry& g, FieldEncoding encoding) {

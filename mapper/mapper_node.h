@@ -58,7 +58,6 @@ class MapperNode {
   void addQueuedKeyframes();
   void requestMissingKeyframes();
   class Pacer;
-  /// flush: every changed block, paced by it (null = one bounded update).
   void publishUpdate();  // the delta of one update period
   // The final flush, one message: false once everything went out.
   bool publishFlushMessage(size_t* bytes);
@@ -71,10 +70,9 @@ class MapperNode {
   int snapshotChunkBlocks() const { return std::max(1, params_.max_blocks_per_update * 3 / 4); }
   void publishPoses();
   void publishStatus();
-  void heartbeat();
+  void heartbeat();  // publishStatus at most once per status period
   int finalRenderThreads() const;
-  size_t publishField(FieldUpdate* update);  // encoded as configured; payload bytes  //
-                                             // publishStatus at most once per status period
+  size_t publishField(FieldUpdate* update);  // encoded as configured; returns payload bytes
   void saveCheckpoint(const std::string& path);
   double now() const;
 

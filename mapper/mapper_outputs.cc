@@ -40,10 +40,7 @@ std::vector<FrameView> nonKeyframeViews(const std::map<int64_t, PoseStamped>& po
     v.camera = keyframes.entry(nearest->second).keyframe.camera;
     views.push_back(v);
   }
-  if (views.size() <= max_views) return views;
-  std::vector<FrameView> spread;
-  for (size_t k = 0; k < max_views; ++k) spread.push_back(views[k * views.size() / max_views]);
-  return spread;
+  return evenlySpread(views, max_views);
 }
 
 namespace {

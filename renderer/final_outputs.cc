@@ -26,13 +26,6 @@ CameraModel scaledCamera(const CameraModel& camera, int width) {
   return c;
 }
 
-std::vector<ViewPose> spreadViews(const std::vector<ViewPose>& views, size_t max_views) {
-  if (views.size() <= max_views) return views;
-  std::vector<ViewPose> spread;
-  for (size_t k = 0; k < max_views; ++k) spread.push_back(views[k * views.size() / max_views]);
-  return spread;
-}
-
 int writeFinalRenders(const FieldReplica& replica, const std::vector<ViewPose>& views,
                       const std::string& dir, const std::function<void()>& progress) {
   std::error_code ec;

@@ -22,9 +22,6 @@ struct ViewPose {
 /// The camera scaled to `width` pixels (same field of view); unchanged when width <= 0.
 CameraModel scaledCamera(const CameraModel& camera, int width);
 
-/// At most max_views of views, evenly spread (first and order kept).
-std::vector<ViewPose> spreadViews(const std::vector<ViewPose>& views, size_t max_views);
-
 /// Writes DIR/<timestamp>.png (colour) and DIR/<timestamp>.exr (channels "depth" and
 /// "sigma", m) for each view, creating DIR. Returns the number of views written; throws
 /// std::runtime_error naming the file when one cannot be written. progress (if set) is called

@@ -8,6 +8,7 @@
 
 #include "common/cli.h"
 #include "common/params.h"
+#include "common/trajectory.h"
 #include "renderer/render_service.h"
 
 namespace radslam {
@@ -276,6 +277,13 @@ void RendererNode::publishStatus(ProcessState state) {
   bus_->publish(channel::kStatus, s);
 }
 
+void RendererNode::heartbeat(ProcessState state) {
+  const int64_t now = wallClockMicros();
+  if (now - last_status_us_ < static_cast<int64_t>(1e6 / params_.status_rate_hz)) return;
+  last_status_us_ = now;
+  publishStatus(state);
+}
+
 int RendererNode::spinOnce(int timeout_ms) {
   const int handled = bus_->handle(timeout_ms);
   applyPendingUpdates(false);
@@ -285,10 +293,7 @@ int RendererNode::spinOnce(int timeout_ms) {
     std::unique_lock<std::shared_mutex> lock(field_mutex_, std::try_to_lock);
     if (lock) replica_.retryStalledSnapshot(now * 1e-6, kSnapshotStallS);
   }
-  if (now - last_status_us_ >= static_cast<int64_t>(1e6 / params_.status_rate_hz)) {
-    last_status_us_ = now;
-    publishStatus(ProcessState::kRunning);
-  }
+  heartbeat(ProcessState::kRunning);
   return handled;
 }
 
@@ -337,12 +342,7 @@ void RendererNode::writeFinal() {
                                               : "every update applied")
             << " (" << replica_.gaps() << " gaps)\n";
   // The heartbeat goes on, so that a supervisor sees a renderer at work, not a hung one.
-  const auto progress = [this] {
-    const int64_t now = wallClockMicros();
-    if (now - last_status_us_ < static_cast<int64_t>(1e6 / params_.status_rate_hz)) return;
-    last_status_us_ = now;
-    publishStatus(ProcessState::kIdle);
-  };
+  const auto progress = [this] { heartbeat(ProcessState::kIdle); };
   try {
     if (params_.final_renders) {
       std::vector<ViewPose> views;
@@ -351,7 +351,7 @@ void RendererNode::writeFinal() {
         view.camera = scaledCamera(v.camera, params_.final_width);
         views.push_back(view);
       }
-      views = spreadViews(views, static_cast<size_t>(params_.final_max_renders));
+      views = evenlySpread(views, static_cast<size_t>(params_.final_max_renders));
       const int n = writeFinalRenders(replica_, views, out_dir_ + "/renders/final", progress);
       std::cerr << "radslam-renderer: wrote " << n << " keyframe renders to " << out_dir_
                 << "/renders/final\n";

@@ -91,6 +91,7 @@ class RendererNode {
   void onControl(const Control& control);
   void followLoop();
   void publishStatus(ProcessState state);
+  void heartbeat(ProcessState state);  // publishStatus at most status_rate_hz
 
   Bus* bus_;
   RendererParams params_;
