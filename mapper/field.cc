@@ -199,7 +199,9 @@ Field::Value Field::query(const Eigen::Vector3f& p, const Eigen::Vector3f& dir) 
 }
 
 void Field::markDensityChanged(int level, int block) {
-  const Level& lv = levels_[level];
+  static std::atomic<uint64_t> last_stamp{0};
+  Level& lv = levels_[level];
+  lv.blocks[block].stamp = last_stamp.fetch_add(1, std::memory_order_relaxed) + 1;
   if (lv.bounds_stale_flag.size() < lv.blocks.size()) lv.bounds_stale_flag.resize(lv.blocks.size());
   uint8_t& flag = lv.bounds_stale_flag[block];
   if (!flag) {

@@ -179,6 +179,11 @@ class Field {
   /// Number of blocks changed and not yet committed.
   int pendingBlocks() const;
 
+  /// A stamp that changes whenever the block's values may have changed (markDensityChanged),
+  /// for caches derived from the field (PreviewField). Stamps come from one process-wide
+  /// counter, so no block of another field (a snapshot replacing a replica) repeats one.
+  uint64_t changeStamp(int level, int block) const { return levels_[level].blocks[block].stamp; }
+
   /// Bitwise equality of geometry, blocks (same ids) and parameters.
   bool sameContent(const Field& other) const;
 
@@ -187,6 +192,7 @@ class Field {
     Eigen::Vector3i index;
     int64_t version = 0;
     int64_t changed_since = 0;  // commit counter when it became changed (oldest first)
+    uint64_t stamp = 0;         // changeStamp()
     bool changed = false;
   };
   struct Level {

@@ -7,6 +7,9 @@
 #include <climits>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
+
+#include <Eigen/Core>
 
 #include "mapper/field.h"
 #include "mapper/volume_renderer.h"
@@ -145,14 +148,16 @@ inline bool evaluate(const Field& field, const float* p, Corners* corners, float
   return true;
 }
 
-// Ray parameter where the ray leaves the axis-aligned cube of edge `edge` holding p.
-inline float cubeExit(const Ray& ray, const float* p, float edge) {
+// Ray parameter where the ray leaves the axis-aligned cube of edge `edge` (m) with integer
+// index `cube` (it spans cube * edge .. (cube + 1) * edge per axis). The index is the caller's,
+// found from the lattice as its lookups were: a cube found again from p here could round to the
+// neighbour at a face and jump over a whole block.
+inline float cubeExit(const Ray& ray, const int* cube, float edge) {
   float t_exit = INFINITY;
   for (int d = 0; d < 3; ++d) {
     const float dir = ray.dir[d];
     if (std::abs(dir) < 1e-12f) continue;
-    const float b = std::floor(p[d] / edge);
-    const float face = (dir > 0 ? b + 1.f : b) * edge;
+    const float face = static_cast<float>(dir > 0 ? cube[d] + 1 : cube[d]) * edge;
     t_exit = std::min(t_exit, (face - ray.origin[d]) / dir);
   }
   return t_exit;
@@ -167,5 +172,102 @@ inline void shade(const float* raw, const float* basis, float* color) {
     color[k] = sigmoid(r);
   }
 }
+
+// fastExp, log1pUnit, softplus and sigmoid of mapper/field.h on 4 lanes: the same operations
+// in the same order, so each lane is bitwise equal to the scalar function (no FMA contraction
+// or fast-math in this build).
+using Lanes = Eigen::Array4f;
+
+[[gnu::always_inline]] inline Lanes fastExp4(Lanes x) {
+  x = x.max(-87.f).min(88.f);
+  const Lanes r = (x * 1.44269504089f + 12582912.f) - 12582912.f;
+  const Lanes f = (x - r * 0.693145751953125f) - r * 1.428606765330187e-06f;
+  Lanes p = Lanes::Constant(1.f / 720);
+  p = p * f + 1.f / 120;
+  p = p * f + 1.f / 24;
+  p = p * f + 1.f / 6;
+  p = p * f + 0.5f;
+  p = p * f + 1.f;
+  p = p * f + 1.f;
+  const Eigen::Array4i bits = (r.cast<int32_t>() + 127) * (1 << 23);
+  Lanes scale;
+  std::memcpy(scale.data(), bits.data(), sizeof(float) * 4);
+  return p * scale;
+}
+
+[[gnu::always_inline]] inline Lanes log1pUnit4(const Lanes& e) {
+  const Lanes s = e / (2.f + e);
+  const Lanes s2 = s * s;
+  Lanes p = Lanes::Constant(1.f / 11);
+  p = p * s2 + 1.f / 9;
+  p = p * s2 + 1.f / 7;
+  p = p * s2 + 1.f / 5;
+  p = p * s2 + 1.f / 3;
+  p = p * s2 + 1.f;
+  return (2.f * s) * p;
+}
+
+[[gnu::always_inline]] inline Lanes softplus4(const Lanes& x) {
+  return x.max(0.f) + log1pUnit4(fastExp4(-x.abs()));
+}
+[[gnu::always_inline]] inline Lanes sigmoid4(const Lanes& x) { return 1.f / (1.f + fastExp4(-x)); }
+
+// Front-to-back compositing of the render-only march: transmittance, colour and the weight
+// moments that give depth and variance.
+struct MarchAccumulator {
+  float transmit = 1.f;
+  double s0 = 0, s1 = 0, s2 = 0;  // sum w, sum w t, sum w t^2
+  float color[3] = {0, 0, 0};
+  int samples = 0;
+
+  // A sample at t whose interval lets through decay = exp(-tau), of colour c (RGB).
+  [[gnu::always_inline]] void add(float t, float decay, const float* c) {
+    const float w = transmit * (1.f - decay);
+    transmit *= decay;
+    s0 += w;
+    s1 += double(w) * t;
+    s2 += double(w) * t * t;
+    for (int k = 0; k < 3; ++k) color[k] += w * c[k];
+    ++samples;
+  }
+  // Shades n <= 4 consecutive samples (raw channels per lane, colour coefficients with the SH
+  // basis) and composites them in ray order, up to where the transmittance falls to
+  // min_transmittance: false from there (the ray is opaque).
+  template <int NB>
+  [[gnu::always_inline]] bool addBatch(const float (*raw)[4], const Lanes& decay, const float* t,
+                                       int n, const float* basis, float min_transmittance) {
+    Lanes c[3];
+    for (int k = 0; k < 3; ++k) {
+      Lanes x(raw[1 + k]);
+      for (int j = 1; j < NB; ++j) x += Lanes(raw[1 + 3 * j + k]) * basis[j];
+      c[k] = sigmoid4(x);
+    }
+    for (int i = 0; i < n; ++i) {
+      if (!(transmit > min_transmittance)) return false;
+      const float rgb[3] = {c[0][i], c[1][i], c[2][i]};
+      add(t[i], decay[i], rgb);
+    }
+    return true;
+  }
+  // The ray's output over background bg (MarchParams::normalize_depth and min_weight).
+  RayOutput finish(const Eigen::Vector3f& bg, const MarchParams& params) const {
+    RayOutput out;
+    const float W = static_cast<float>(s0);
+    for (int k = 0; k < 3; ++k) out.color[k] = color[k] + (1.f - W) * bg[k];
+    out.weight = W;
+    out.samples = samples;
+    if (params.normalize_depth) {
+      if (W >= params.min_weight && W > 0) {
+        const double dm = s1 / s0;
+        out.depth = static_cast<float>(dm);
+        out.var = static_cast<float>(std::max(0.0, s2 / s0 - dm * dm));
+      }
+    } else {
+      out.depth = static_cast<float>(s1);
+      out.var = static_cast<float>(std::max(0.0, s2 - s1 * s1 * (2.0 - s0)));
+    }
+    return out;
+  }
+};
 
 }  // namespace radslam::ray_kernels

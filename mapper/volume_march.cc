@@ -114,45 +114,6 @@ template <int C>
   for (int ch = 0; ch < C; ++ch) raw[ch] = acc[ch];
 }
 
-// fastExp, log1pUnit, softplus and sigmoid of mapper/field.h on 4 lanes: the same operations
-// in the same order, so each lane is bitwise equal to the scalar function (no FMA contraction
-// or fast-math in this build).
-using Lanes = Eigen::Array4f;
-
-[[gnu::always_inline]] inline Lanes fastExp4(Lanes x) {
-  x = x.max(-87.f).min(88.f);
-  const Lanes r = (x * 1.44269504089f + 12582912.f) - 12582912.f;
-  const Lanes f = (x - r * 0.693145751953125f) - r * 1.428606765330187e-06f;
-  Lanes p = Lanes::Constant(1.f / 720);
-  p = p * f + 1.f / 120;
-  p = p * f + 1.f / 24;
-  p = p * f + 1.f / 6;
-  p = p * f + 0.5f;
-  p = p * f + 1.f;
-  p = p * f + 1.f;
-  const Eigen::Array4i bits = (r.cast<int32_t>() + 127) * (1 << 23);
-  Lanes scale;
-  std::memcpy(scale.data(), bits.data(), sizeof(float) * 4);
-  return p * scale;
-}
-
-[[gnu::always_inline]] inline Lanes log1pUnit4(const Lanes& e) {
-  const Lanes s = e / (2.f + e);
-  const Lanes s2 = s * s;
-  Lanes p = Lanes::Constant(1.f / 11);
-  p = p * s2 + 1.f / 9;
-  p = p * s2 + 1.f / 7;
-  p = p * s2 + 1.f / 5;
-  p = p * s2 + 1.f / 3;
-  p = p * s2 + 1.f;
-  return (2.f * s) * p;
-}
-
-[[gnu::always_inline]] inline Lanes softplus4(const Lanes& x) {
-  return x.max(0.f) + log1pUnit4(fastExp4(-x.abs()));
-}
-[[gnu::always_inline]] inline Lanes sigmoid4(const Lanes& x) { return 1.f / (1.f + fastExp4(-x)); }
-
 // What the march does in a fine sub-block (Field::kSubDim^3 fine cells).
 enum class SubBlock {
   kSample,    // evaluate the field at each sample
@@ -207,11 +168,7 @@ template <int NB>
 RayOutput marchImpl(const Field& field, const Ray& ray, const MarchParams& params,
                     const Eigen::Vector3f& bg) {
   constexpr int C = 1 + 3 * NB;
-  RayOutput out;
-  if (field.empty()) {
-    for (int k = 0; k < 3; ++k) out.color[k] = bg[k];
-    return out;
-  }
+  if (field.empty()) return MarchAccumulator().finish(bg, params);
   float t0, t1;
   if (!intersectBox(ray, field.boundsMin(), field.boundsMax(), &t0, &t1)) t1 = -1;
   t0 = std::max(t0, params.near);
@@ -258,17 +215,15 @@ RayOutput marchImpl(const Field& field, const Ray& ray, const MarchParams& param
   // a constant sub-block composites exactly what sampling it would.
   const float const_decay = fastExp4(-(softplus4(bias + Lanes::Zero()) * scale) * fine_step)[0];
   const float const_color = sigmoid4(Lanes::Zero())[0];
-  float transmit = 1.f;
-  double s0 = 0, s1 = 0, s2 = 0;  // sum w, sum w t, sum w t^2
-  float color[3] = {0, 0, 0};
+  const float const_rgb[3] = {const_color, const_color, const_color};
+  MarchAccumulator acc;
   float t = t0;
-  int samples = 0;
   // Samples go in batches of up to kLanes consecutive ones in allocated space: their lookups
   // one by one, their shading on lanes, then the compositing in ray order (which stops where
   // the scalar loop would).
   constexpr int kLanes = 4;
   bool opaque = false;
-  while (!opaque && t < t1 && transmit > params.min_transmittance) {
+  while (!opaque && t < t1 && acc.transmit > params.min_transmittance) {
     float tb[kLanes];
     float db[kLanes];  // intervals, m
     float raw[C][kLanes] = {};
@@ -283,7 +238,7 @@ RayOutput marchImpl(const Field& field, const Ray& ray, const MarchParams& param
                          static_cast<int>(std::floor(p[2] / coarse_edge))};
       if (cb[0] != coarse_block[0] || cb[1] != coarse_block[1] || cb[2] != coarse_block[2]) {
         if (field.findBlock(0, cb[0], cb[1], cb[2]) < 0) {
-          if (n == 0) ts = std::max(ts + nudge, cubeExit(ray, p, coarse_edge) + nudge);
+          if (n == 0) ts = std::max(ts + nudge, cubeExit(ray, cb, coarse_edge) + nudge);
           break;
         }
         std::copy(cb, cb + 3, coarse_block);
@@ -305,14 +260,14 @@ RayOutput marchImpl(const Field& field, const Ray& ray, const MarchParams& param
             // the thickness per fine voxel), never past the sub-block's exit.
             const float thickness = softplus(bound) * scale;  // 1/m
             sub_step = std::clamp(params.max_sample_thickness / thickness, fine_step, max_step);
-            sub_exit = cubeExit(ray, p, sub_edge);
+            sub_exit = cubeExit(ray, sub_key, sub_edge);
           }
         }
         if (adaptive) step = std::min(sub_step, std::max(sub_exit - ts, 0.f) + nudge);
         if (sub_state == SubBlock::kSkip) {
           // Over the rest of the sub-block, staying on the sample grid; the loop's increment
           // adds the last step.
-          const float steps = std::ceil((cubeExit(ray, p, sub_edge) - ts) / fine_step);
+          const float steps = std::ceil((cubeExit(ray, sub_key, sub_edge) - ts) / fine_step);
           ts += std::max(0.f, steps - 1.f) * fine_step;
           step = fine_step;
           continue;
@@ -321,22 +276,16 @@ RayOutput marchImpl(const Field& field, const Ray& ray, const MarchParams& param
           // The batch so far goes first; this sample starts the next one.
           if (n > 0) break;
           // Samples of a constant field: no lookups, the compositing of the loop below.
-          const float exit = std::min(cubeExit(ray, p, sub_edge), t1);
+          const float exit = std::min(cubeExit(ray, sub_key, sub_edge), t1);
           const float decay = step == fine_step
                                   ? const_decay
                                   : fastExp4(-(softplus4(bias + Lanes::Zero()) * scale) * step)[0];
           do {
-            if (!(transmit > params.min_transmittance)) {
+            if (!(acc.transmit > params.min_transmittance)) {
               opaque = true;
               break;
             }
-            const float w = transmit * (1.f - decay);
-            transmit *= decay;
-            s0 += w;
-            s1 += double(w) * ts;
-            s2 += double(w) * ts * ts;
-            for (int k = 0; k < 3; ++k) color[k] += w * const_color;
-            ++samples;
+            acc.add(ts, decay, const_rgb);
             ts += step;
           } while (ts < exit);
           break;
@@ -345,7 +294,11 @@ RayOutput marchImpl(const Field& field, const Ray& ray, const MarchParams& param
       float frac[3];
       moveTo(field, p, &cursor[fine], frac);
       if (!cursor[fine].corner0) {
-        if (n == 0) ts = std::max(ts + nudge, cubeExit(ray, p, fine_edge) + nudge);
+        if (n == 0) {
+          const int fb[3] = {blockOf(cursor[fine].cell[0]), blockOf(cursor[fine].cell[1]),
+                             blockOf(cursor[fine].cell[2])};
+          ts = std::max(ts + nudge, cubeExit(ray, fb, fine_edge) + nudge);
+        }
         break;
       }
       float r[C] = {};
@@ -362,41 +315,9 @@ RayOutput marchImpl(const Field& field, const Ray& ray, const MarchParams& param
     if (n == 0) continue;
     const Lanes sigma = softplus4(bias + Lanes(raw[0])) * scale;
     const Lanes decay = adaptive ? fastExp4(-sigma * Lanes(db)) : fastExp4(-sigma * fine_step);
-    Lanes c[3];
-    for (int k = 0; k < 3; ++k) {
-      Lanes x(raw[1 + k]);
-      for (int j = 1; j < NB; ++j) x += Lanes(raw[1 + 3 * j + k]) * basis[j];
-      c[k] = sigmoid4(x);
-    }
-    for (int i = 0; i < n; ++i) {
-      if (!(transmit > params.min_transmittance)) {
-        opaque = true;
-        break;
-      }
-      const float w = transmit * (1.f - decay[i]);
-      transmit *= decay[i];
-      s0 += w;
-      s1 += double(w) * tb[i];
-      s2 += double(w) * tb[i] * tb[i];
-      for (int k = 0; k < 3; ++k) color[k] += w * c[k][i];
-      ++samples;
-    }
+    opaque = !acc.addBatch<NB>(raw, decay, tb, n, basis, params.min_transmittance);
   }
-  const float W = static_cast<float>(s0);
-  for (int k = 0; k < 3; ++k) out.color[k] = color[k] + (1.f - W) * bg[k];
-  out.weight = W;
-  out.samples = samples;
-  if (params.normalize_depth) {
-    if (W >= params.min_weight && W > 0) {
-      const double dm = s1 / s0;
-      out.depth = static_cast<float>(dm);
-      out.var = static_cast<float>(std::max(0.0, s2 / s0 - dm * dm));
-    }
-  } else {
-    out.depth = static_cast<float>(s1);
-    out.var = static_cast<float>(std::max(0.0, s2 - s1 * s1 * (2.0 - s0)));
-  }
-  return out;
+  return acc.finish(bg, params);
 }
 
 }  // namespace
@@ -429,6 +350,12 @@ RayOutput VolumeRenderer::march(const Field& field, const Ray& ray,
 RenderImages VolumeRenderer::render(const Field& field, const SE3& T_world_cam,
                                     const CameraModel& camera, const MarchParams& params,
                                     int threads) const {
+  return renderPinhole(T_world_cam, camera, threads,
+                       [&](const Ray& ray) { return march(field, ray, params); });
+}
+
+RenderImages renderPinhole(const SE3& T_world_cam, const CameraModel& camera, int threads,
+                           const std::function<RayOutput(const Ray&)>& march_ray) {
   if (camera.width <= 0 || camera.height <= 0 || !(camera.fx > 0) || !(camera.fy > 0))
     throw std::invalid_argument("render: camera needs positive size and focal lengths, got " +
                                 std::to_string(camera.width) + "x" + std::to_string(camera.height));
@@ -455,7 +382,7 @@ RenderImages VolumeRenderer::render(const Field& field, const SE3& T_world_cam,
           for (int u = u0; u < u1; ++u) {
             const Eigen::Vector3d cam_dir((u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy,
                                           1);
-            const RayOutput r = march(field, makeRay(T_world_cam, cam_dir), params);
+            const RayOutput r = march_ray(makeRay(T_world_cam, cam_dir));
             color[u] = cv::Vec3f(r.color[0], r.color[1], r.color[2]);
             depth[u] = r.depth;
             sigma[u] = std::sqrt(std::max(0.f, r.var));

@@ -14,6 +14,7 @@
 #include "common/bus.h"
 #include "common/cli.h"
 #include "common/lcm_log.h"
+#include "mapper/preview_field.h"
 #include "renderer/demo_field.h"
 #include "renderer/field_replica.h"
 #include "renderer/final_outputs.h"
@@ -29,14 +30,22 @@ double cpuSeconds() {
 }
 
 // Median CPU time of `runs` views, and the samples per ray that explain it.
+// A view of the replica with params: the replica's march, or the baked copy when given.
+RenderImages renderWith(const FieldReplica& replica, const PreviewField* baked, const SE3& T,
+                        const CameraModel& camera, const MarchParams& params) {
+  if (!baked) return replica.render(T, camera, &params);
+  return baked->render(replica.field(), T, camera, params, Eigen::Vector3f::Zero());
+}
+
 void measure(const FieldReplica& replica, const std::vector<Keyframe>& keyframes,
-             const CameraModel& camera, const MarchParams& params, const char* label, int runs) {
+             const CameraModel& camera, const MarchParams& params, const char* label, int runs,
+             const PreviewField* baked = nullptr) {
   std::vector<double> cpu, wall;
   for (int i = 0; i < runs; ++i) {
     const SE3& T = keyframes[i % keyframes.size()].T_world_cam;
     const auto w0 = std::chrono::steady_clock::now();
     const double c0 = cpuSeconds();
-    const RenderImages images = replica.render(T, camera, &params);
+    const RenderImages images = renderWith(replica, baked, T, camera, params);
     cpu.push_back(cpuSeconds() - c0);
     wall.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - w0).count());
   }
@@ -46,8 +55,9 @@ void measure(const FieldReplica& replica, const std::vector<Keyframe>& keyframes
   for (int v = 0; v < camera.height; v += 4) {
     for (int u = 0; u < camera.width; u += 4) {
       const Eigen::Vector3d dir((u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, 1);
-      samples +=
-          renderer.march(replica.field(), makeRay(keyframes[0].T_world_cam, dir), params).samples;
+      const Ray ray = makeRay(keyframes[0].T_world_cam, dir);
+      samples += baked ? baked->march(replica.field(), ray, params, Eigen::Vector3f::Zero()).samples
+                       : renderer.march(replica.field(), ray, params).samples;
       rays += 1;
     }
   }
@@ -67,13 +77,14 @@ void measure(const FieldReplica& replica, const std::vector<Keyframe>& keyframes
 // and the pixels with a depth in one only.
 void compareWithExact(const FieldReplica& replica, const std::vector<Keyframe>& keyframes,
                       const CameraModel& camera, const MarchParams& exact,
-                      const MarchParams& params, const char* label, int views) {
+                      const MarchParams& params, const char* label, int views,
+                      const PreviewField* baked = nullptr) {
   double sq = 0, max_depth = 0;
   long long values = 0, validity = 0;
   for (int i = 0; i < views; ++i) {
     const SE3& T = keyframes[i % keyframes.size()].T_world_cam;
     const RenderImages a = replica.render(T, camera, &exact);
-    const RenderImages b = replica.render(T, camera, &params);
+    const RenderImages b = renderWith(replica, baked, T, camera, params);
     cv::Mat diff;
     cv::subtract(a.color, b.color, diff);
     sq += diff.dot(diff);
@@ -132,14 +143,74 @@ void writeDemoLog(const std::string& path, const DemoFieldOptions& options) {
               path.c_str());
 }
 
+// The live cost of the baked preview copy: the FIELD updates of a recorded run applied in order
+// to a replica, the copy brought fully up to date after each (as the first live view after an
+// update would), and what that took.
+int replayFieldUpdates(const std::string& log_path, float skip_thickness) {
+  LogReader log(log_path);
+  FieldReplica replica;
+  PreviewField preview(skip_thickness);
+  // And as the renderer's live views do: a budget per view, views_per_update views per update.
+  const RendererParams live;
+  const int views_per_update = 2;
+  PreviewField budgeted(skip_thickness);
+  std::vector<double> ms, stale;
+  double total_s = 0;
+  int updates = 0;
+  while (const auto event = log.next()) {
+    if (event->channel != channel::kField) continue;
+    FieldUpdate update;
+    std::string error;
+    if (!decode(event->data.data(), event->data.size(), &update, &error) ||
+        replica.apply(update, &error) == ApplyResult::kInvalid) {
+      std::cerr << "radslam-bench-renderer: " << log_path << ": skipped a FIELD message: " << error
+                << "\n";
+      continue;
+    }
+    ++updates;
+    const double c0 = cpuSeconds();
+    preview.refresh(replica.field());
+    const double dt = cpuSeconds() - c0;
+    total_s += dt;
+    ms.push_back(1e3 * dt);
+    int left = 0;
+    for (int v = 0; v < views_per_update; ++v)
+      left = budgeted.refresh(replica.field(), live.preview_refresh_s);
+    stale.push_back(
+        100.0 * left /
+        std::max<size_t>(1, replica.field().numBlocks(replica.field().numLevels() - 1)));
+  }
+  if (ms.empty()) {
+    std::cerr << "radslam-bench-renderer: " << log_path << " has no FIELD messages\n";
+    return 1;
+  }
+  std::vector<double> sorted = ms;
+  std::sort(sorted.begin(), sorted.end());
+  std::printf(
+      "%d FIELD updates (%zu blocks at the end): bringing the preview copy up to date after each "
+      "took median %.1f ms, 90th percentile %.1f ms, max %.1f ms CPU, %.1f s in all; copy %.1f "
+      "MB\n",
+      updates, replica.field().totalBlocks(), sorted[sorted.size() / 2],
+      sorted[sorted.size() * 9 / 10], sorted.back(), total_s, preview.bytes() / 1e6);
+  std::vector<double> stale_sorted = stale;
+  std::sort(stale_sorted.begin(), stale_sorted.end());
+  std::printf(
+      "with %g s per view and %d views per update: stale fine blocks after the views median "
+      "%.1f%%, max %.1f%%, after the last update %.1f%%\n",
+      live.preview_refresh_s, views_per_update, stale_sorted[stale_sorted.size() / 2],
+      stale_sorted.back(), stale.back());
+  return 0;
+}
+
 int run(int argc, char** argv) {
   CommandLine cl(argc, argv,
                  "radslam-bench-renderer [--checkpoint RUN/mapper.ckpt] [--keyframes 8] "
                  "[--train-width 320] [--steps 200] [--runs 7] [--preview-step 1] "
-                 "[--preview-transmittance 0.01] [--preview-skip 0.05] [--fast-thickness 0.05] "
+                 "[--preview-transmittance 0.01] [--preview-skip 0.05] [--preview-thickness 0.05] "
+                 "[--fast-thickness 0.05] "
                  "[--fast-max-step 4] "
-                 "[--exact-runs 0] [--compare-views 3] "
-                 "[--write-log FILE.lcmlog]");
+                 "[--exact-runs 0] [--compare-views 3] [--preview-only] [--width 320|640] "
+                 "[--write-log FILE.lcmlog] [--replay-log RUN/run.lcmlog]");
   if (cl.helpRequested()) {
     std::cout << cl.usage() << "\n";
     return 0;
@@ -153,17 +224,23 @@ int run(int argc, char** argv) {
   const double preview_step = cl.getDouble("preview-step", 1.0);
   const double preview_transmittance = cl.getDouble("preview-transmittance", 0.01);
   const double preview_skip = cl.getDouble("preview-skip", RendererParams().preview_skip_thickness);
+  const double preview_thickness =
+      cl.getDouble("preview-thickness", RendererParams().preview_max_sample_thickness);
   const std::string log_path = cl.get("write-log", "");
+  const std::string replay_log = cl.get("replay-log", "");
   const std::string checkpoint = cl.get("checkpoint", "");
   const int exact_runs = cl.getInt("exact-runs", 0);
   const double fast_thickness = cl.getDouble("fast-thickness", 0.05);
   const double fast_max_step = cl.getDouble("fast-max-step", 4);
   const int compare_views = cl.getInt("compare-views", 3);
+  const bool preview_only = cl.getBool("preview-only", false);
+  const int only_width = cl.getInt("width", 0);
   cl.finish();
   if (!log_path.empty()) {
     writeDemoLog(log_path, options);
     return 0;
   }
+  if (!replay_log.empty()) return replayFieldUpdates(replay_log, static_cast<float>(preview_skip));
 
   std::vector<Keyframe> keyframes;
   std::unique_ptr<Mapper> mapper;
@@ -202,6 +279,13 @@ int run(int argc, char** argv) {
     replica.field().densityBounds(0);
     std::printf("density bounds of all blocks built in %.1f ms CPU\n", 1e3 * (cpuSeconds() - c0));
   }
+  PreviewField baked(static_cast<float>(preview_skip));
+  {
+    const double c0 = cpuSeconds();
+    baked.refresh(replica.field());
+    std::printf("baked preview copy of all blocks built in %.1f ms CPU, %.1f MB\n",
+                1e3 * (cpuSeconds() - c0), baked.bytes() / 1e6);
+  }
   const MarchParams mapper_march = replica.marchParams();
   MarchParams exact = mapper_march;
   exact.skip_thickness = 0;
@@ -215,19 +299,29 @@ int run(int argc, char** argv) {
   renderer_params.preview_step_fine = preview_step;
   renderer_params.preview_min_transmittance = preview_transmittance;
   renderer_params.preview_skip_thickness = preview_skip;
+  renderer_params.preview_max_sample_thickness = preview_thickness;
   applyPreview(renderer_params, &preview);
   for (const int width : {320, 640}) {
+    if (only_width > 0 && width != only_width) continue;
     const CameraModel camera = scaledCamera(keyframes[0].camera, width);
     if (exact_runs > 0)
       measure(replica, keyframes, camera, exact, "exact (fixed step)", exact_runs);
-    measure(replica, keyframes, camera, mapper_march, "mapper's march", runs);
-    measure(replica, keyframes, camera, fast, "adaptive step", runs);
-    measure(replica, keyframes, camera, preview, "preview", runs);
+    if (!preview_only) {
+      measure(replica, keyframes, camera, mapper_march, "mapper's march", runs);
+      measure(replica, keyframes, camera, fast, "adaptive step", runs);
+    }
+    measure(replica, keyframes, camera, preview, "preview, unbaked", runs);
+    measure(replica, keyframes, camera, preview, "preview", runs, &baked);
     if (compare_views > 0) {
-      compareWithExact(replica, keyframes, camera, exact, mapper_march, "mapper's march",
+      if (!preview_only) {
+        compareWithExact(replica, keyframes, camera, exact, mapper_march, "mapper's march",
+                         compare_views);
+        compareWithExact(replica, keyframes, camera, exact, fast, "adaptive step", compare_views);
+      }
+      compareWithExact(replica, keyframes, camera, exact, preview, "preview, unbaked",
                        compare_views);
-      compareWithExact(replica, keyframes, camera, exact, fast, "adaptive step", compare_views);
-      compareWithExact(replica, keyframes, camera, exact, preview, "preview", compare_views);
+      compareWithExact(replica, keyframes, camera, exact, preview, "preview", compare_views,
+                       &baked);
     }
   }
   return 0;

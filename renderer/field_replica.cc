@@ -96,20 +96,41 @@ MarchParams FieldReplica::marchParams() const {
   return mp;
 }
 
-RenderImages FieldReplica::render(const SE3& T_world_cam, const CameraModel& camera,
-                                  const MarchParams* params) const {
+namespace {
+// What render() gives before any field exists: background colour, depth and sigma 0.
+RenderImages emptyRender(const CameraModel& camera) {
+  RenderImages out;
+  out.color = cv::Mat(camera.height, camera.width, CV_32FC3, cv::Scalar::all(0));
+  out.depth = cv::Mat::zeros(camera.height, camera.width, CV_32FC1);
+  out.sigma = cv::Mat::zeros(camera.height, camera.width, CV_32FC1);
+  out.weight = cv::Mat::zeros(camera.height, camera.width, CV_32FC1);
+  return out;
+}
+
+void checkCamera(const CameraModel& camera) {
   if (camera.width <= 0 || camera.height <= 0 || !(camera.fx > 0) || !(camera.fy > 0))
     throw std::invalid_argument("render: camera needs a positive size and focal lengths");
-  if (!field_.initialized()) {
-    RenderImages out;
-    out.color = cv::Mat(camera.height, camera.width, CV_32FC3, cv::Scalar::all(0));
-    out.depth = cv::Mat::zeros(camera.height, camera.width, CV_32FC1);
-    out.sigma = cv::Mat::zeros(camera.height, camera.width, CV_32FC1);
-    out.weight = cv::Mat::zeros(camera.height, camera.width, CV_32FC1);
-    return out;
-  }
+}
+}  // namespace
+
+RenderImages FieldReplica::render(const SE3& T_world_cam, const CameraModel& camera,
+                                  const MarchParams* params) const {
+  checkCamera(camera);
+  if (!field_.initialized()) return emptyRender(camera);
   return renderer_.render(field_, T_world_cam, camera, params ? *params : marchParams(),
                           params_.threads);
+}
+
+RenderImages FieldReplica::renderPreview(const SE3& T_world_cam, const CameraModel& camera,
+                                         const MarchParams& params, double refresh_budget_s) const {
+  checkCamera(camera);
+  if (!field_.initialized()) return emptyRender(camera);
+  std::lock_guard<std::mutex> lock(preview_mutex_);
+  if (preview_.skipThickness() != std::max(0.f, params.skip_thickness))
+    preview_ = PreviewField(params.skip_thickness);
+  preview_stale_.store(preview_.refresh(field_, refresh_budget_s), std::memory_order_relaxed);
+  return preview_.render(field_, T_world_cam, camera, params, renderer_.background(),
+                         params_.threads);
 }
 
 }  // namespace radslam

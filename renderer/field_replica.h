@@ -3,14 +3,17 @@
 // replica is the view the mapper would render of the same field.
 #pragma once
 
+#include <atomic>
 #include <cstdint>
 #include <functional>
+#include <mutex>
 #include <string>
 
 #include "common/lie.h"
 #include "common/types.h"
 #include "mapper/field.h"
 #include "mapper/field_io.h"
+#include "mapper/preview_field.h"
 #include "mapper/volume_renderer.h"
 
 namespace radslam {
@@ -55,10 +58,21 @@ class FieldReplica {
   /// std::invalid_argument on a camera without positive size and focal lengths.
   RenderImages render(const SE3& T_world_cam, const CameraModel& camera,
                       const MarchParams* params = nullptr) const;
+  /// A live-view render with params (the preview's march) from the replica's baked copy
+  /// (PreviewField, its skip threshold params.skip_thickness), brought up to date first for
+  /// at most refresh_budget_s seconds (<= 0: all). Previews wait for each other; the replica
+  /// must not change meanwhile (as for render()).
+  RenderImages renderPreview(const SE3& T_world_cam, const CameraModel& camera,
+                             const MarchParams& params, double refresh_budget_s) const;
+  /// Fine blocks of the baked copy the last preview left stale (does not wait for previews).
+  int previewStaleBlocks() const { return preview_stale_.load(std::memory_order_relaxed); }
 
  private:
   ReplicaRenderParams params_;
   Field field_;
+  mutable std::mutex preview_mutex_;
+  mutable PreviewField preview_;
+  mutable std::atomic<int> preview_stale_{0};
   VolumeRenderer renderer_;
   SnapshotRequest request_snapshot_;
   int64_t version_empty_ = 0;  // version of an (empty) replica before the field exists

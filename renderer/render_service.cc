@@ -67,7 +67,7 @@ std::string validateRenderRequest(const RenderRequest& r) {
 }
 
 RenderResult renderView(const FieldReplica& replica, const RenderRequest& request,
-                        const MarchParams* params) {
+                        const PreviewOptions* preview) {
   RenderResult out;
   out.header.utime = request.header.utime;
   out.request_id = request.request_id;
@@ -78,7 +78,10 @@ RenderResult renderView(const FieldReplica& replica, const RenderRequest& reques
   try {
     CameraModel camera = request.camera;
     camera.distortion.clear();  // renders are pinhole views
-    const RenderImages images = replica.render(request.T_world_cam, camera, params);
+    const RenderImages images =
+        preview ? replica.renderPreview(request.T_world_cam, camera, preview->march,
+                                        preview->refresh_budget_s)
+                : replica.render(request.T_world_cam, camera);
     if (request.channels & kRenderColor) out.color = toBgr8(images.color);
     if (request.channels & kRenderDepth) out.depth = images.depth;
     if (request.channels & kRenderSigma) out.sigma = images.sigma;

@@ -18,10 +18,14 @@ std::string validateRenderRequest(const RenderRequest& request);
 
 /// The view a request asks for: ok=false with the error text for a bad request; otherwise
 /// colour (CV_8UC3 BGR), depth and sigma (CV_32FC1, m; 0 = unknown) as the channels ask,
-/// with the replica's field version. request_id and client are copied back. params: march
-/// parameters other than the mapper's (live previews); null = the mapper's.
+/// with the replica's field version. request_id and client are copied back. preview: a live
+/// view (FieldReplica::renderPreview) instead of the mapper's march.
+struct PreviewOptions {
+  MarchParams march;
+  double refresh_budget_s = 0;
+};
 RenderResult renderView(const FieldReplica& replica, const RenderRequest& request,
-                        const MarchParams* params = nullptr);
+                        const PreviewOptions* preview = nullptr);
 
 /// Colour-mapped views for display (CV_8UC3 BGR): depth with TURBO over [0, max_m] (max_m <= 0:
 /// the 98th percentile of the valid depths) and sigma with INFERNO over [0, max_m] likewise;

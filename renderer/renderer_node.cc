@@ -32,6 +32,7 @@ void validate(const RendererParams& p) {
         "preview_max_step_fine >= 1");
   if (!(p.preview_min_transmittance >= 0 && p.preview_min_transmittance < 1))
     throw std::invalid_argument("preview_min_transmittance must be in [0, 1)");
+  if (!(p.preview_refresh_s >= 0)) throw std::invalid_argument("preview_refresh_s must be >= 0");
   if (p.follow_width < 0 || p.follow_width > kMaxRenderSize)
     throw std::invalid_argument("follow_width must be in [0, 4096] (0 = off)");
   if (!(p.follow_rate_hz > 0)) throw std::invalid_argument("follow_rate_hz must be > 0");
@@ -64,6 +65,7 @@ RendererParams loadRendererParams(const std::string& yaml_path,
   r.get("preview_skip_thickness", &p.preview_skip_thickness);
   r.get("preview_max_sample_thickness", &p.preview_max_sample_thickness);
   r.get("preview_max_step_fine", &p.preview_max_step_fine);
+  r.get("preview_refresh_s", &p.preview_refresh_s);
   r.get("follow_width", &p.follow_width);
   r.get("follow_rate_hz", &p.follow_rate_hz);
   r.get("status_rate_hz", &p.status_rate_hz);
@@ -157,9 +159,11 @@ void applyPreview(const RendererParams& params, MarchParams* mp) {
 RenderResult RendererNode::render(const RenderRequest& request, bool preview) const {
   std::shared_lock<std::shared_mutex> lock(field_mutex_);
   if (!preview) return renderView(replica_, request);
-  MarchParams mp = replica_.marchParams();
-  applyPreview(params_, &mp);
-  return renderView(replica_, request, &mp);
+  PreviewOptions options;
+  options.march = replica_.marchParams();
+  applyPreview(params_, &options.march);
+  options.refresh_budget_s = params_.preview_refresh_s;
+  return renderView(replica_, request, &options);
 }
 
 void RendererNode::onField(const FieldUpdate& update) {
@@ -244,8 +248,9 @@ void RendererNode::followLoop() {
     CameraModel camera;
     int64_t seq = 0;
     const int64_t version = fieldVersion();
+    // Also while the preview copy is behind the replica: each view brings it further.
     if (viewer_.latestPose(&pose, &camera, &seq) &&
-        (seq != rendered_seq || version != rendered_version)) {
+        (seq != rendered_seq || version != rendered_version || replica_.previewStaleBlocks() > 0)) {
       RenderRequest request;
       request.T_world_cam = pose.T_world_cam;
       request.camera = scaledCamera(camera, params_.follow_width);
@@ -272,6 +277,7 @@ void RendererNode::publishStatus(ProcessState state) {
   reporter_.setValue("bad_requests", static_cast<double>(bad_requests_));
   reporter_.setValue("snapshots_requested", static_cast<double>(snapshots_requested_));
   reporter_.setValue("keyframes", static_cast<double>(keyframes_.size()));
+  reporter_.setValue("preview_stale_blocks", static_cast<double>(replica_.previewStaleBlocks()));
   const Status s = reporter_.make();
   viewer_.setStatus(s);
   bus_->publish(channel::kStatus, s);

@@ -35,6 +35,10 @@ struct RendererParams {
   double preview_skip_thickness = 0.05;
   double preview_max_sample_thickness = 0.05;
   double preview_max_step_fine = 4;
+  // Live views render a baked single-level copy of the replica (PreviewField), brought up to
+  // date for at most this long before each view (s, 0 = fully): parts still stale show the
+  // field as it was.
+  double preview_refresh_s = 0.05;
   int follow_width = 320;     // pixels; the follow view's camera is scaled to this width
   double follow_rate_hz = 5;  // follow views per second at most
   double status_rate_hz = 2;

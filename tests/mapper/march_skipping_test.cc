@@ -10,29 +10,12 @@
 #include "mapper/field.h"
 #include "mapper/ray_kernels.h"
 #include "mapper/volume_renderer.h"
+#include "tests/mapper/random_field.h"
 
 namespace radslam {
 namespace {
 
 using ray_kernels::Corners;
-
-// A shell of allocated blocks with pseudo-random values, some blocks zeroed.
-Field makeRandomField(int sh_degree) {
-  Field field(FieldGeometry::make(0.03, 2, 2, sh_degree, -4.6f));
-  Rng rng;
-  for (double x = -0.4; x <= 0.4; x += 0.03)
-    for (double y = -0.4; y <= 0.4; y += 0.03)
-      for (double z = 0.8; z <= 1.6; z += 0.03)
-        if (rng.uniform() < 0.6f) field.allocateAround(Eigen::Vector3f(x, y, z));
-  for (int l = 0; l < field.numLevels(); ++l)
-    for (int b = 0; b < field.numBlocks(l); ++b) {
-      float* data = field.blockData(l, b);
-      const bool zero = rng.uniform() < 0.3f;
-      for (int i = 0; i < Field::kBlockVoxels * field.channels(); ++i)
-        data[i] = zero ? 0.f : (rng.uniform() - 0.5f) * 8.f;
-    }
-  return field;
-}
 
 // The level's interpolation at p (channels, bias not added), as the renderer computes it.
 void interpolate(const Field& field, int level, const Eigen::Vector3f& p, float* raw) {
@@ -55,7 +38,7 @@ long entryAt(const Field& field, int level, const Eigen::Vector3f& p) {
 
 TEST(DensityBounds, BoundTheInterpolationAndFlagZeros) {
   for (const int sh : {0, 1}) {
-    const Field field = makeRandomField(sh);
+    const Field field = makeRandomField(2, 2, sh);
     Rng rng;
     int checked = 0, zeros = 0;
     for (int i = 0; i < 20000; ++i) {

@@ -380,16 +380,21 @@ RayOutput referenceMarch(const Field& field, const Ray& ray, const MarchParams& 
   for (float t = t0; t < t1 && transmit > params.min_transmittance;) {
     const float p[3] = {ray.origin.x() + t * ray.dir.x(), ray.origin.y() + t * ray.dir.y(),
                         ray.origin.z() + t * ray.dir.z()};
-    if (field.findBlock(0, static_cast<int>(std::floor(p[0] / coarse_edge)),
-                        static_cast<int>(std::floor(p[1] / coarse_edge)),
-                        static_cast<int>(std::floor(p[2] / coarse_edge))) < 0) {
-      t = std::max(t + nudge, cubeExit(ray, p, coarse_edge) + nudge);
+    const int cb[3] = {static_cast<int>(std::floor(p[0] / coarse_edge)),
+                       static_cast<int>(std::floor(p[1] / coarse_edge)),
+                       static_cast<int>(std::floor(p[2] / coarse_edge))};
+    if (field.findBlock(0, cb[0], cb[1], cb[2]) < 0) {
+      t = std::max(t + nudge, cubeExit(ray, cb, coarse_edge) + nudge);
       continue;
     }
     Corners corners[Field::kMaxLevels];
     locate(field, fine, p, &corners[fine]);
     if (!(corners[fine].mask & 1u)) {
-      t = std::max(t + nudge, cubeExit(ray, p, fine_edge) + nudge);
+      // The fine block of the cell's corner 0, found as locate() found it.
+      const float inv = field.invVoxelSize(fine);
+      int fb[3];
+      for (int k = 0; k < 3; ++k) fb[k] = blockOf(static_cast<int>(std::floor(p[k] * inv)));
+      t = std::max(t + nudge, cubeExit(ray, fb, fine_edge) + nudge);
       continue;
     }
     float raw[13] = {};

@@ -1,0 +1,446 @@
+#include "mapper/preview_field.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
+#include "mapper/ray_kernels.h"
+
+namespace radslam {
+
+namespace {
+
+using namespace ray_kernels;
+
+constexpr int kP = PreviewField::kSubPoints;
+constexpr int kMaxChannels = 1 + 3 * 4;
+// Offsets (in points) of a cell's 8 corners within a sub-block's points; corner c has
+// dx = c & 1, dy = (c >> 1) & 1, dz = c >> 2 (as kCornerOffset).
+constexpr int kCorner[8] = {0, 1, kP, kP + 1, kP* kP, kP* kP + 1, kP* kP + kP, kP* kP + kP + 1};
+constexpr float kZeros[kMaxChannels] = {};
+
+// Round to nearest even (the field's values are finite).
+uint16_t toBfloat16(float x) {
+  uint32_t bits;
+  std::memcpy(&bits, &x, sizeof(bits));
+  bits += 0x7FFFu + ((bits >> 16) & 1u);
+  return static_cast<uint16_t>(bits >> 16);
+}
+[[gnu::always_inline]] inline float fromBfloat16(uint16_t h) {
+  const uint32_t bits = uint32_t{h} << 16;
+  float x;
+  std::memcpy(&x, &bits, sizeof(x));
+  return x;
+}
+
+int64_t floorDiv(int64_t a, int64_t b) { return a >= 0 ? a / b : -((-a + b - 1) / b); }
+int64_t ceilDiv(int64_t a, int64_t b) { return -floorDiv(-a, b); }
+
+// A level's voxel size over the fine one's (an integer: FieldGeometry::validate).
+int fineRatio(const Field& field, int level) {
+  return static_cast<int>(
+      std::lround(field.voxelSize(level) / field.voxelSize(field.numLevels() - 1)));
+}
+
+// The 8 corners of a level's lattice cell (channel pointers, zeros where unallocated), kept
+// while consecutive points stay in the cell.
+struct CellCorners {
+  int64_t cell[3] = {INT64_MIN, 0, 0};
+  const float* corner[8];
+
+  void moveTo(const Field& field, int level, const int64_t* c) {
+    if (c[0] == cell[0] && c[1] == cell[1] && c[2] == cell[2]) return;
+    std::copy(c, c + 3, cell);
+    const int channels = field.channels();
+    for (int k = 0; k < 8; ++k) {
+      const int x = static_cast<int>(c[0] + (k & 1)), y = static_cast<int>(c[1] + ((k >> 1) & 1)),
+                z = static_cast<int>(c[2] + (k >> 2));
+      const int b = field.findBlock(level, blockOf(x), blockOf(y), blockOf(z));
+      corner[k] = b < 0 ? kZeros
+                        : field.levelData(level) +
+                              (static_cast<size_t>(b) * Field::kBlockVoxels +
+                               Field::voxelInBlock(localOf(x), localOf(y), localOf(z))) *
+                                  channels;
+    }
+  }
+};
+
+// The block holding a lattice point, remembered for the next point.
+struct LastBlock {
+  int key[3] = {INT32_MIN, 0, 0};
+  int block = -1;
+
+  int find(const Field& field, int level, const int64_t* g) {
+    const int bx = blockOf(static_cast<int>(g[0])), by = blockOf(static_cast<int>(g[1])),
+              bz = blockOf(static_cast<int>(g[2]));
+    if (bx != key[0] || by != key[1] || bz != key[2]) {
+      key[0] = bx;
+      key[1] = by;
+      key[2] = bz;
+      block = field.findBlock(level, bx, by, bz);
+    }
+    return block;
+  }
+};
+
+}  // namespace
+
+PreviewField::PreviewField(float skip_thickness)
+    : skip_thickness_(std::max(0.f, skip_thickness)),
+      skip_raw_(skip_thickness_ > 0 ? std::log(std::expm1(skip_thickness_)) : -INFINITY) {}
+
+void PreviewField::reset(const FieldGeometry& geometry) {
+  geometry_ = geometry;
+  have_geometry_ = true;
+  channels_ = geometry.channels();
+  blocks_.clear();
+  seen_.assign(geometry.numLevels(), {});
+  values_.clear();
+  free_slots_.clear();
+  dirty_.clear();
+  dirty_flag_.clear();
+}
+
+void PreviewField::markDirty(int fine_block) {
+  if (dirty_flag_[fine_block]) return;
+  dirty_flag_[fine_block] = 1;
+  // Blocks never baked go first: a growing map shows its new parts at once.
+  if (blocks_[fine_block].baked)
+    dirty_.push_back(fine_block);
+  else
+    dirty_.push_front(fine_block);
+}
+
+void PreviewField::markDependents(const Field& field, int level, int block) {
+  const int fine = field.numLevels() - 1;
+  const Eigen::Vector3i& index = field.blockIndex(level, block);
+  int64_t lo[3], hi[3];
+  for (int k = 0; k < 3; ++k) {
+    if (level == fine) {
+      // A fine block's points are also the halo of the blocks before it on each axis.
+      lo[k] = index[k] - 1;
+      hi[k] = index[k];
+    } else {
+      // The block's points i = 8 B .. 8 B + 7 (level units) enter the interpolation over
+      // [(8 B - 1) R, (8 B + 8) R] in fine lattice units; fine block F holds 8 F .. 8 F + 8.
+      const int64_t R = fineRatio(field, level), B = index[k];
+      lo[k] = ceilDiv((8 * B - 1) * R - Field::kBlockDim, Field::kBlockDim);
+      hi[k] = floorDiv((8 * B + 8) * R, Field::kBlockDim);
+    }
+  }
+  for (int64_t z = lo[2]; z <= hi[2]; ++z)
+    for (int64_t y = lo[1]; y <= hi[1]; ++y)
+      for (int64_t x = lo[0]; x <= hi[0]; ++x) {
+        const int id = field.findBlock(fine, Eigen::Vector3i(x, y, z).cast<int>());
+        if (id >= 0 && id < static_cast<int>(blocks_.size())) markDirty(id);
+      }
+}
+
+int PreviewField::refresh(const Field& field, double budget_s) {
+  using Clock = std::chrono::steady_clock;
+  const auto start = Clock::now();
+  if (!field.initialized()) {
+    have_geometry_ = false;
+    blocks_.clear();
+    dirty_.clear();
+    return 0;
+  }
+  const int fine = field.numLevels() - 1;
+  if (!have_geometry_ || geometry_ != field.geometry() ||
+      field.numBlocks(fine) < static_cast<int>(blocks_.size()))
+    reset(field.geometry());
+  FineBlock empty;
+  std::fill(empty.slot, empty.slot + Field::kSubBlocks, -1);
+  std::fill(empty.bound, empty.bound + Field::kSubBlocks, -INFINITY);
+  empty.stored = 0;
+  empty.baked = false;
+  blocks_.resize(field.numBlocks(fine), empty);
+  dirty_flag_.resize(blocks_.size(), 0);
+  for (int l = 0; l < field.numLevels(); ++l) {
+    std::vector<uint64_t>& seen = seen_[l];
+    seen.resize(field.numBlocks(l), 0);
+    for (int b = 0; b < field.numBlocks(l); ++b) {
+      const uint64_t stamp = field.changeStamp(l, b);
+      if (stamp == seen[b]) continue;
+      seen[b] = stamp;
+      markDependents(field, l, b);
+    }
+  }
+  const auto deadline =
+      start + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(budget_s));
+  // Room for every stale sub-block at once (address space only until written): growing one
+  // slot at a time would copy the whole copy over and over.
+  const size_t stride = size_t(kPointsPerSub) * channels_;
+  values_.reserve(
+      std::max(values_.capacity(), values_.size() + dirty_.size() * Field::kSubBlocks * stride));
+  for (int baked = 0; !dirty_.empty(); ++baked) {
+    // At least a batch per call, so that any budget makes progress.
+    if (budget_s > 0 && baked > 0 && baked % 8 == 0 && Clock::now() >= deadline) break;
+    const int b = dirty_.front();
+    dirty_.pop_front();
+    dirty_flag_[b] = 0;
+    bakeBlock(field, b);
+  }
+  return staleBlocks();
+}
+
+void PreviewField::bakeBlock(const Field& field, int fine_block) {
+  const int levels = field.numLevels();
+  const int fine = levels - 1;
+  const int C = channels_;
+  const Eigen::Vector3i& index = field.blockIndex(fine, fine_block);
+  const float* bounds[Field::kMaxLevels];
+  for (int l = 0; l < levels; ++l) bounds[l] = field.densityBounds(l);
+  int ratio[Field::kMaxLevels];
+  for (int l = 0; l < levels; ++l) ratio[l] = fineRatio(field, l);
+  FineBlock& entry = blocks_[fine_block];
+  entry.baked = true;
+  uint16_t baked[kPointsPerSub * kMaxChannels];
+  for (int s = 0; s < Field::kSubBlocks; ++s) {
+    const int64_t g0[3] = {int64_t{index.x()} * Field::kBlockDim + Field::kSubDim * (s & 1),
+                           int64_t{index.y()} * Field::kBlockDim + Field::kSubDim * ((s >> 1) & 1),
+                           int64_t{index.z()} * Field::kBlockDim + Field::kSubDim * (s >> 2)};
+    // The field's own density bounds (a sum of per-level bounds over the sub-block) settle most
+    // empty sub-blocks without evaluating them.
+    float upper = field.densityBias() + bounds[fine][size_t(fine_block) * Field::kSubBlocks + s];
+    for (int l = 0; l < fine && upper < skip_raw_; ++l) {
+      int64_t sub[3];
+      for (int k = 0; k < 3; ++k) sub[k] = floorDiv(g0[k], ratio[l]) >> Field::kSubShift;
+      const int b = field.findBlock(l, static_cast<int>(sub[0] >> 1), static_cast<int>(sub[1] >> 1),
+                                    static_cast<int>(sub[2] >> 1));
+      upper = b < 0 ? INFINITY
+                    : upper + bounds[l][size_t(b) * Field::kSubBlocks + (sub[0] & 1) +
+                                        ((sub[1] & 1) << 1) + ((sub[2] & 1) << 2)];
+    }
+    float bound = upper;
+    if (upper >= skip_raw_) {
+      bound = -INFINITY;
+      float sum[kPointsPerSub * kMaxChannels];
+      for (int p = 0; p < kPointsPerSub; ++p) {
+        sum[p * C] = field.densityBias();
+        for (int ch = 1; ch < C; ++ch) sum[p * C + ch] = 0;
+      }
+      // The fine level's own values.
+      LastBlock fine_blocks;
+      for (int z = 0, p = 0; z < kP; ++z)
+        for (int y = 0; y < kP; ++y)
+          for (int x = 0; x < kP; ++x, ++p) {
+            const int64_t g[3] = {g0[0] + x, g0[1] + y, g0[2] + z};
+            const int b = fine_blocks.find(field, fine, g);
+            if (b < 0) continue;
+            const float* value =
+                field.levelData(fine) + (static_cast<size_t>(b) * Field::kBlockVoxels +
+                                         Field::voxelInBlock(localOf(static_cast<int>(g[0])),
+                                                             localOf(static_cast<int>(g[1])),
+                                                             localOf(static_cast<int>(g[2])))) *
+                                            C;
+            for (int ch = 0; ch < C; ++ch) sum[p * C + ch] += value[ch];
+          }
+      // Each coarser level's trilinear interpolation at the points, with exact fractions.
+      for (int l = 0; l < fine; ++l) {
+        int64_t cell[3][kP];
+        float frac[3][kP];
+        for (int k = 0; k < 3; ++k)
+          for (int i = 0; i < kP; ++i) {
+            cell[k][i] = floorDiv(g0[k] + i, ratio[l]);
+            frac[k][i] = static_cast<float>(g0[k] + i - cell[k][i] * ratio[l]) / ratio[l];
+          }
+        CellCorners corners;
+        for (int z = 0, p = 0; z < kP; ++z)
+          for (int y = 0; y < kP; ++y)
+            for (int x = 0; x < kP; ++x, ++p) {
+              const int64_t c[3] = {cell[0][x], cell[1][y], cell[2][z]};
+              corners.moveTo(field, l, c);
+              const float wx[2] = {1 - frac[0][x], frac[0][x]};
+              const float wy[2] = {1 - frac[1][y], frac[1][y]};
+              const float wz[2] = {1 - frac[2][z], frac[2][z]};
+              for (int k = 0; k < 8; ++k) {
+                const float w = wx[k & 1] * wy[(k >> 1) & 1] * wz[k >> 2];
+                const float* corner = corners.corner[k];
+                for (int ch = 0; ch < C; ++ch) sum[p * C + ch] += w * corner[ch];
+              }
+            }
+      }
+      for (int p = 0; p < kPointsPerSub; ++p) {
+        for (int ch = 0; ch < C; ++ch) baked[p * C + ch] = toBfloat16(sum[p * C + ch]);
+        bound = std::max(bound, fromBfloat16(baked[p * C]));
+      }
+    }
+    entry.bound[s] = bound;
+    int32_t& slot = entry.slot[s];
+    if (bound < skip_raw_) {
+      if (slot >= 0) free_slots_.push_back(slot);
+      slot = -1;
+      entry.stored &= static_cast<uint8_t>(~(1u << s));
+      continue;
+    }
+    entry.stored |= static_cast<uint8_t>(1u << s);
+    if (slot < 0) {
+      if (!free_slots_.empty()) {
+        slot = free_slots_.back();
+        free_slots_.pop_back();
+      } else {
+        slot = static_cast<int32_t>(values_.size() / (size_t(kPointsPerSub) * C));
+        values_.resize(values_.size() + size_t(kPointsPerSub) * C);
+      }
+    }
+    std::copy(baked, baked + kPointsPerSub * C, values_.data() + size_t(slot) * kPointsPerSub * C);
+  }
+}
+
+// The 4 channels of RGB fields: r += sum_k w[k] * corner k, on SSE2 lanes when there (the
+// same products and sums in the same order as the scalar loop).
+[[gnu::always_inline]] inline void gather4(const uint16_t* base, const float* w, float* r) {
+#if defined(__SSE2__)
+  const __m128i zero = _mm_setzero_si128();
+  __m128 acc = _mm_setzero_ps();
+  for (int k = 0; k < 8; ++k) {
+    // bfloat16 -> float: the 16 bits become the upper half of each 32-bit lane.
+    const __m128i h = _mm_loadl_epi64(reinterpret_cast<const __m128i*>(base + kCorner[k] * 4));
+    const __m128 v = _mm_castsi128_ps(_mm_unpacklo_epi16(zero, h));
+    acc = _mm_add_ps(acc, _mm_mul_ps(_mm_set1_ps(w[k]), v));
+  }
+  _mm_storeu_ps(r, acc);
+#else
+  for (int ch = 0; ch < 4; ++ch) r[ch] = 0;
+  for (int k = 0; k < 8; ++k)
+    for (int ch = 0; ch < 4; ++ch) r[ch] += w[k] * fromBfloat16(base[kCorner[k] * 4 + ch]);
+#endif
+}
+
+// The march of VolumeRenderer::march (volume_march.cc) on the baked sub-blocks: jumps over
+// unallocated blocks and empty sub-blocks, and samples a stored sub-block with its own step
+// (adaptive: from its density bound) from its points alone.
+template <int NB>
+RayOutput PreviewField::marchImpl(const Field& field, const Ray& ray, const MarchParams& params,
+                                  const Eigen::Vector3f& bg) const {
+  constexpr int C = 1 + 3 * NB;
+  MarchAccumulator acc;
+  if (field.empty() || blocks_.empty() || channels_ != C) return acc.finish(bg, params);
+  float t0, t1;
+  if (!intersectBox(ray, field.boundsMin(), field.boundsMax(), &t0, &t1)) t1 = -1;
+  t0 = std::max(t0, params.near);
+  t1 = std::min(t1, params.far);
+  const int fine = field.numLevels() - 1;
+  const float voxel = static_cast<float>(field.voxelSize(fine));
+  const float inv = field.invVoxelSize(fine);
+  const float scale = field.densityScale();
+  const float fine_step = params.step_fine * voxel;
+  const float max_step =
+      std::max(fine_step, voxel * std::max(params.step_fine, params.max_step_fine));
+  const bool adaptive = params.max_sample_thickness > 0;
+  const float coarse_edge = static_cast<float>(field.voxelSize(0)) * Field::kBlockDim;
+  const float inv_coarse_edge = 1.f / coarse_edge;
+  const float fine_edge = voxel * Field::kBlockDim;
+  const float sub_edge = voxel * Field::kSubDim;
+  const float nudge = 1e-3f * fine_step;  // past a face
+  const float basis[4] = {1.f, ray.view_dir.x(), ray.view_dir.y(), ray.view_dir.z()};
+  const float o[3] = {ray.origin.x(), ray.origin.y(), ray.origin.z()};
+  const float d[3] = {ray.dir.x(), ray.dir.y(), ray.dir.z()};
+  const int num_blocks = static_cast<int>(blocks_.size());
+  // Samples are gathered in batches of 4 (across sub-blocks), shaded on lanes and composited
+  // in ray order, which stops where the transmittance does (a batch may overshoot by 3).
+  float tb[4] = {}, db[4] = {};
+  float raw[C][4] = {};
+  int n = 0;
+  bool opaque = false;
+  auto flush = [&]() {
+    const Lanes sigma = softplus4(Lanes(raw[0])) * scale;  // the bias is baked in
+    const Lanes decay = fastExp4(-sigma * Lanes(db));
+    opaque = !acc.addBatch<NB>(raw, decay, tb, n, basis, params.min_transmittance);
+    n = 0;
+  };
+  float t = t0;
+  int last_block[3] = {INT32_MIN, 0, 0};  // the fine block of the last visit, and its id
+  int id = -1;
+  while (!opaque && t < t1) {
+    const float p[3] = {o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]};
+    int g[3];
+    for (int k = 0; k < 3; ++k) g[k] = static_cast<int>(std::floor(p[k] * inv));
+    const int fb[3] = {blockOf(g[0]), blockOf(g[1]), blockOf(g[2])};
+    if (fb[0] != last_block[0] || fb[1] != last_block[1] || fb[2] != last_block[2]) {
+      std::copy(fb, fb + 3, last_block);
+      id = field.findBlock(fine, fb[0], fb[1], fb[2]);
+      if (id >= num_blocks) id = -1;  // allocated since the last refresh
+    }
+    if (id < 0 || blocks_[id].stored == 0) {
+      // Nothing stored: past the coarse block when that is unallocated too, else past the fine
+      // one.
+      int cb[3];
+      for (int k = 0; k < 3; ++k) cb[k] = static_cast<int>(std::floor(p[k] * inv_coarse_edge));
+      const float exit = id < 0 && field.findBlock(0, cb[0], cb[1], cb[2]) < 0
+                             ? cubeExit(ray, cb, coarse_edge)
+                             : cubeExit(ray, fb, fine_edge);
+      t = std::max(t + nudge, exit + nudge);
+      continue;
+    }
+    int sub[3];
+    for (int k = 0; k < 3; ++k) sub[k] = g[k] >> Field::kSubShift;
+    const float exit = std::min(t1, cubeExit(ray, sub, sub_edge));
+    const int s = (sub[0] & 1) | ((sub[1] & 1) << 1) | ((sub[2] & 1) << 2);
+    const FineBlock& entry = blocks_[id];
+    if (entry.slot[s] < 0 || !(t < exit)) {
+      t = std::max(t + nudge, exit + nudge);
+      continue;
+    }
+    const float step =
+        adaptive ? std::clamp(params.max_sample_thickness / (softplus(entry.bound[s]) * scale),
+                              fine_step, max_step)
+                 : fine_step;
+    const uint16_t* values = values_.data() + size_t(entry.slot[s]) * kPointsPerSub * C;
+    const float origin[3] = {static_cast<float>(sub[0] * Field::kSubDim),
+                             static_cast<float>(sub[1] * Field::kSubDim),
+                             static_cast<float>(sub[2] * Field::kSubDim)};
+    for (; t < exit; t += step) {
+      int cell[3];
+      float w3[3][2];
+      for (int k = 0; k < 3; ++k) {
+        const float q = (o[k] + t * d[k]) * inv - origin[k];
+        cell[k] = std::clamp(static_cast<int>(std::floor(q)), 0, Field::kSubDim - 1);
+        const float f = std::clamp(q - cell[k], 0.f, 1.f);
+        w3[k][0] = 1 - f;
+        w3[k][1] = f;
+      }
+      float w[8];
+      for (int k = 0; k < 8; ++k) w[k] = w3[0][k & 1] * w3[1][(k >> 1) & 1] * w3[2][k >> 2];
+      const uint16_t* base = values + ((cell[2] * kP + cell[1]) * kP + cell[0]) * C;
+      float r[C];
+      if constexpr (C == 4) {
+        gather4(base, w, r);
+      } else {
+        for (int ch = 0; ch < C; ++ch) r[ch] = 0;
+        for (int k = 0; k < 8; ++k)
+          for (int ch = 0; ch < C; ++ch) r[ch] += w[k] * fromBfloat16(base[kCorner[k] * C + ch]);
+      }
+      for (int ch = 0; ch < C; ++ch) raw[ch][n] = r[ch];
+      tb[n] = t;
+      db[n] = step;
+      if (++n == 4) {
+        flush();
+        if (opaque) break;
+      }
+    }
+  }
+  if (n > 0) flush();
+  return acc.finish(bg, params);
+}
+
+RayOutput PreviewField::march(const Field& field, const Ray& ray, const MarchParams& params,
+                              const Eigen::Vector3f& background) const {
+  return field.colorBasis() == 4 ? marchImpl<4>(field, ray, params, background)
+                                 : marchImpl<1>(field, ray, params, background);
+}
+
+RenderImages PreviewField::render(const Field& field, const SE3& T_world_cam,
+                                  const CameraModel& camera, const MarchParams& params,
+                                  const Eigen::Vector3f& background, int threads) const {
+  return renderPinhole(T_world_cam, camera, threads,
+                       [&](const Ray& ray) { return march(field, ray, params, background); });
+}
+
+}  // namespace radslam

@@ -1,0 +1,88 @@
+// A compact single-level copy of a Field for fast approximate renders (the renderer's live
+// views).
+//
+/// Why one level is enough: the lattices nest (voxel sizes are integer multiples and lattice
+/// points sit at i * voxel_size), so within one fine cell every coarser level's trilinear
+/// interpolant is itself trilinear, and the field's sum of levels is the trilinear
+/// interpolation of the summed values at the fine cell's corners. Baking those sums at the fine
+/// lattice points turns a sample's per-level lookups and gathers into one gather.
+///
+/// Layout: per fine sub-block (Field::kSubDim^3 cells), the (kSubDim + 1)^3 lattice points its
+/// cells read, stored together (no lookups across blocks), as bfloat16 (8 mantissa bits: a raw
+/// density off by at most 0.4%, which the preview accepts for half the memory), with the raw
+/// density bias added. A sub-block whose density bound gives less than skip_thickness optical
+/// thickness per fine voxel stores nothing and is stepped over.
+#pragma once
+
+#include <cstdint>
+#include <deque>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "common/lie.h"
+#include "common/types.h"
+#include "mapper/field.h"
+#include "mapper/volume_renderer.h"
+
+namespace radslam {
+
+class PreviewField {
+ public:
+  static constexpr int kSubPoints = Field::kSubDim + 1;  // lattice points per sub-block axis
+  static constexpr int kPointsPerSub = kSubPoints * kSubPoints * kSubPoints;
+
+  /// skip_thickness: optical thickness per fine voxel below which a sub-block is empty here
+  /// (MarchParams::skip_thickness; 0 keeps every allocated sub-block).
+  explicit PreviewField(float skip_thickness = 0.05f);
+
+  /// Brings the copy up to date with `field` (the field it was refreshed from, changed since,
+  /// or one that replaced it): sub-blocks whose values depend on blocks changed since the last
+  /// call (Field::changeStamp) are baked again, new blocks first and then the longest stale,
+  /// until budget_s seconds have passed (<= 0: all of them; > 0: at least a few blocks). Until
+  /// then a stale sub-block renders as baked last, a new one as empty. Returns the number of
+  /// fine blocks still stale.
+  int refresh(const Field& field, double budget_s = 0);
+  int staleBlocks() const { return static_cast<int>(dirty_.size()); }
+  /// Memory of the baked values (bytes).
+  size_t bytes() const { return values_.size() * sizeof(uint16_t); }
+  float skipThickness() const { return skip_thickness_; }
+
+  /// VolumeRenderer::march on this copy of `field` (the field refresh() last saw; blocks
+  /// allocated since are empty). params.skip_thickness is ignored: the one baked in applies.
+  RayOutput march(const Field& field, const Ray& ray, const MarchParams& params,
+                  const Eigen::Vector3f& background) const;
+  /// A pinhole view, as VolumeRenderer::render.
+  RenderImages render(const Field& field, const SE3& T_world_cam, const CameraModel& camera,
+                      const MarchParams& params, const Eigen::Vector3f& background,
+                      int threads = 1) const;
+
+ private:
+  struct FineBlock {
+    int32_t slot[Field::kSubBlocks];  // into values_ (kPointsPerSub * channels each), -1 = empty
+    float bound[Field::kSubBlocks];   // largest raw density (bias included) of the points
+    uint8_t stored;                   // bit s: sub-block s has a slot
+    bool baked;                       // at least once
+  };
+  void reset(const FieldGeometry& geometry);
+  void markDependents(const Field& field, int level, int block);
+  void markDirty(int fine_block);
+  void bakeBlock(const Field& field, int fine_block);
+  template <int NB>
+  RayOutput marchImpl(const Field& field, const Ray& ray, const MarchParams& params,
+                      const Eigen::Vector3f& background) const;
+
+  float skip_thickness_;
+  float skip_raw_;  // raw density (bias included) below which a sub-block is empty
+  FieldGeometry geometry_;
+  bool have_geometry_ = false;
+  int channels_ = 0;
+  std::vector<FineBlock> blocks_;            // per fine block id of the field
+  std::vector<std::vector<uint64_t>> seen_;  // per level and block: the stamp baked from
+  std::vector<uint16_t> values_;             // bfloat16, slot-major, point, channel
+  std::vector<int32_t> free_slots_;
+  std::deque<int> dirty_;  // fine blocks to bake, oldest first
+  std::vector<uint8_t> dirty_flag_;
+};
+
+}  // namespace radslam
