@@ -1,5 +1,6 @@
 #include "recorder/run_recorder.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -313,10 +314,12 @@ std::string RunRecorder::exportRun(const std::string& out_dir, double wall_s, in
       json << ", \"" << jsonKey(key) << "\": " << jsonNumber(value);
     json << "}";
   }
-  // Traffic per channel: mean rate over the channel's active span and the peak 1 s rate.
+  // Traffic per channel: mean rate over the channel's active span (at least the 1 s of the peak
+  // window: a burst of a few messages within milliseconds is not megabytes per second) and the
+  // peak 1 s rate.
   auto meanRate = [](const ChannelTraffic& t) {
     const double span_s = static_cast<double>(t.last_utime - t.first_utime) * 1e-6;
-    return span_s > 0 ? static_cast<double>(t.bytes) / span_s : 0.0;
+    return static_cast<double>(t.bytes) / std::max(1.0, span_s);
   };
   json << ",\n  \"channels\": {";
   first = true;

@@ -120,6 +120,8 @@ TEST(RunRecorderTest, ReportsTrafficPerChannel) {
   // POSE: 100 B at 30 Hz.
   for (int k = 0; k <= 8; ++k) recorder.onMessage("FIELD", k * 500'000, 1'000'000);
   for (int k = 0; k <= 120; ++k) recorder.onMessage("POSE", k * 33'333, 100);
+  // MAPPER_POSE: a burst of 20 x 1 kB within 10 ms: 20 kB/s over the 1 s minimum span.
+  for (int k = 0; k < 20; ++k) recorder.onMessage("MAPPER_POSE", 2'000'000 + k * 500, 1000);
   const std::string out = ::testing::TempDir() + "/run_recorder_test_traffic";
   std::filesystem::remove_all(out);
   const std::string summary = recorder.exportRun(out, 4.0, 130, 9'012'100);
@@ -129,6 +131,10 @@ TEST(RunRecorderTest, ReportsTrafficPerChannel) {
             std::string::npos)
       << json;
   EXPECT_NE(json.find("\"POSE\": {\"messages\": 121, \"bytes\": 12100"), std::string::npos) << json;
+  EXPECT_NE(json.find("\"MAPPER_POSE\": {\"messages\": 20, \"bytes\": 20000, "
+                      "\"mean_bytes_per_s\": 20000,"),
+            std::string::npos)
+      << json;
   EXPECT_NE(summary.find("FIELD"), std::string::npos) << summary;
 }
 
