@@ -159,6 +159,7 @@ int PreviewField::refresh(const Field& field, double budget_s) {
   std::fill(empty.bound, empty.bound + Field::kSubBlocks, -INFINITY);
   empty.stored = 0;
   empty.baked = false;
+  empty.index = Eigen::Vector3i::Zero();
   blocks_.resize(field.numBlocks(fine), empty);
   dirty_flag_.resize(blocks_.size(), 0);
   for (int l = 0; l < field.numLevels(); ++l) {
@@ -168,6 +169,17 @@ int PreviewField::refresh(const Field& field, double budget_s) {
       const uint64_t stamp = field.changeStamp(l, b);
       if (stamp == seen[b]) continue;
       seen[b] = stamp;
+      if (l == fine && blocks_[b].baked && blocks_[b].index != field.blockIndex(fine, b)) {
+        // The id now names another block (a snapshot replaced the field): empty until baked,
+        // not the old block's values in the new place.
+        FineBlock& entry = blocks_[b];
+        for (int32_t& slot : entry.slot) {
+          if (slot >= 0) free_slots_.push_back(slot);
+          slot = -1;
+        }
+        entry.stored = 0;
+        entry.baked = false;
+      }
       markDependents(field, l, b);
     }
   }
@@ -200,6 +212,7 @@ void PreviewField::bakeBlock(const Field& field, int fine_block) {
   for (int l = 0; l < levels; ++l) ratio[l] = fineRatio(field, l);
   FineBlock& entry = blocks_[fine_block];
   entry.baked = true;
+  entry.index = index;
   uint16_t baked[kPointsPerSub * kMaxChannels];
   for (int s = 0; s < Field::kSubBlocks; ++s) {
     const int64_t g0[3] = {int64_t{index.x()} * Field::kBlockDim + Field::kSubDim * (s & 1),

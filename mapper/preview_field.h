@@ -8,10 +8,10 @@
 /// lattice points turns a sample's per-level lookups and gathers into one gather.
 ///
 /// Layout: per fine sub-block (Field::kSubDim^3 cells), the (kSubDim + 1)^3 lattice points its
-/// cells read, stored together (no lookups across blocks), as bfloat16 (8 mantissa bits: a raw
-/// density off by at most 0.4%, which the preview accepts for half the memory), with the raw
-/// density bias added. A sub-block whose density bound gives less than skip_thickness optical
-/// thickness per fine voxel stores nothing and is stepped over.
+/// cells read, stored together (no lookups across blocks), as bfloat16 (8 mantissa bits,
+/// rounded to nearest: at most 0.2% off, which the preview accepts for half the memory), with
+/// the raw density bias added. A sub-block whose density bound gives less than skip_thickness
+/// optical thickness per fine voxel stores nothing and is stepped over.
 #pragma once
 
 #include <cstdint>
@@ -63,6 +63,7 @@ class PreviewField {
     float bound[Field::kSubBlocks];   // largest raw density (bias included) of the points
     uint8_t stored;                   // bit s: sub-block s has a slot
     bool baked;                       // at least once
+    Eigen::Vector3i index;            // the block's index when baked
   };
   void reset(const FieldGeometry& geometry);
   void markDependents(const Field& field, int level, int block);
