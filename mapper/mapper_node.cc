@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <deque>
 #include <filesystem>
 #include <iostream>
 #include <thread>
@@ -22,27 +23,42 @@ size_t payloadBytes(const FieldUpdate& u) {
 }
 }  // namespace
 
-// Paces messages at a mean rate: a message may go once the bytes before it fit the rate. Time
-// spent elsewhere earns at most kBurstS of credit, so that pauses do not end in bursts.
+// Bounds FIELD traffic in every 1 s window. ready() says whether a message as large as the
+// last one would fit now (callers that must not wait skip a turn); waitFor() waits until a
+// message of the given size fits (at once when nothing went in the last second, so that a
+// message larger than the limit still goes, alone).
 class MapperNode::Pacer {
  public:
-  explicit Pacer(double mb_per_s) : rate_(mb_per_s * 1e6) {}
-  bool ready() const { return Clock::now() >= next_; }
-  void wait() const { std::this_thread::sleep_until(next_); }
-  void sent(size_t bytes) {
-    bytes_ += static_cast<double>(bytes);
-    const Clock::time_point earliest = Clock::now() - std::chrono::duration_cast<Clock::duration>(
-                                                          std::chrono::duration<double>(kBurstS));
-    next_ = std::max(next_, earliest) + std::chrono::duration_cast<Clock::duration>(
-                                            std::chrono::duration<double>(bytes / rate_));
+  explicit Pacer(double mb_per_s) : limit_(mb_per_s * 1e6) {}
+  bool ready() {
+    forget(Clock::now());
+    return window_.empty() || window_bytes_ + last_ <= limit_;
   }
-  double megabytes() const { return bytes_ * 1e-6; }
+  void wait() { waitFor(last_); }
+  void waitFor(double bytes) {
+    for (forget(Clock::now()); !window_.empty() && window_bytes_ + bytes > limit_;
+         forget(Clock::now()))
+      std::this_thread::sleep_until(window_.front().first + kWindow);
+  }
+  void sent(size_t bytes) {
+    window_.emplace_back(Clock::now(), static_cast<double>(bytes));
+    window_bytes_ += static_cast<double>(bytes);
+    last_ = static_cast<double>(bytes);
+    total_ += static_cast<double>(bytes);
+  }
+  double megabytes() const { return total_ * 1e-6; }
 
  private:
   using Clock = std::chrono::steady_clock;
-  static constexpr double kBurstS = 0.25;
-  Clock::time_point next_ = Clock::now();
-  double rate_, bytes_ = 0;
+  static constexpr std::chrono::seconds kWindow{1};
+  void forget(Clock::time_point now) {
+    while (!window_.empty() && window_.front().first + kWindow <= now) {
+      window_bytes_ -= window_.front().second;
+      window_.pop_front();
+    }
+  }
+  double limit_, window_bytes_ = 0, last_ = 0, total_ = 0;
+  std::deque<std::pair<Clock::time_point, double>> window_;
 };
 
 MapperNode::MapperNode(Bus* bus, const MapperNodeParams& params, std::string out_dir)
@@ -51,12 +67,15 @@ MapperNode::MapperNode(Bus* bus, const MapperNodeParams& params, std::string out
       out_dir_(std::move(out_dir)),
       mapper_(params.core),
       reporter_("mapper"),
-      start_(std::chrono::steady_clock::now()) {
+      start_(std::chrono::steady_clock::now()),
+      field_pacer_(std::make_unique<Pacer>(params.field_max_mb_per_s)) {
   bus_->subscribe<Keyframe>(channel::kKeyframe, [this](const Keyframe& k) { onKeyframe(k); });
   bus_->subscribe<PoseStamped>(channel::kPose, [this](const PoseStamped& p) { onPose(p); });
   bus_->subscribe<Control>(channel::kControl, [this](const Control& c) { onControl(c); });
   reporter_.setState(ProcessState::kIdle);
 }
+
+MapperNode::~MapperNode() = default;
 
 double MapperNode::now() const {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
@@ -159,6 +178,8 @@ void MapperNode::requestKeyframes(const std::string& which) {
 }
 
 void MapperNode::publishUpdate() {
+  // Past the FIELD limit the update waits for the next period (its blocks stay changed).
+  if (!field_pacer_->ready()) return;
   // While a snapshot is sent, its chunks take the rest of the period's blocks.
   const int blocks = snapshot_ ? std::max(1, params_.max_blocks_per_update - snapshotChunkBlocks())
                                : params_.max_blocks_per_update;
@@ -168,46 +189,45 @@ void MapperNode::publishUpdate() {
   delta_base_ = u.version;
 }
 
-bool MapperNode::publishFlushMessage(size_t* bytes) {
+bool MapperNode::publishFlushMessage() {
   // The snapshot in progress, every block not yet sent, then a snapshot if one was asked for
   // (a replica that lost an update is exact again only with one) and what changed meanwhile.
   if (snapshot_) {
-    *bytes = publishSnapshotChunk();
+    publishSnapshotChunk();
     return true;
   }
   FieldUpdate u = mapper_.makeUpdate(delta_base_, params_.max_blocks_per_update);
   if (!u.blocks.empty()) {
-    *bytes = publishField(&u);
+    publishField(&u);
     delta_base_ = u.version;
     return true;
   }
   if (snapshot_requested_ && mapper_.field().initialized()) {
     startSnapshot();
-    *bytes = 0;
     return true;
   }
   return false;
 }
 
-void MapperNode::flushField(Pacer* pacer, bool to_end) {
+void MapperNode::flushField(bool to_end) {
   while (flushing_) {
     if (to_end) {
-      pacer->wait();
-    } else if (!pacer->ready()) {
+      field_pacer_->wait();
+    } else if (!field_pacer_->ready()) {
       return;
     }
-    size_t bytes = 0;
-    flushing_ = publishFlushMessage(&bytes);
-    pacer->sent(bytes);
+    flushing_ = publishFlushMessage();
     heartbeat();
   }
 }
 
-size_t MapperNode::publishField(FieldUpdate* u) {
+void MapperNode::publishField(FieldUpdate* u) {
   encodeFieldUpdate(params_.field_encoding, u);
+  const size_t bytes = payloadBytes(*u);
+  field_pacer_->waitFor(static_cast<double>(bytes));
   u->header.utime = wallClockMicros();
   bus_->publish(channel::kField, *u);
-  return payloadBytes(*u);
+  field_pacer_->sent(bytes);
 }
 
 void MapperNode::startSnapshot() {
@@ -223,13 +243,12 @@ void MapperNode::startSnapshot() {
   snapshot_.emplace(mapper_.makeSnapshotSender(++snapshot_seq_, snapshotChunkBlocks()));
 }
 
-size_t MapperNode::publishSnapshotChunk() {
+void MapperNode::publishSnapshotChunk() {
   FieldUpdate u = snapshot_->next();
-  const size_t bytes = publishField(&u);
+  publishField(&u);
   // The deltas go on from delta_base_, the version of the last chunk (SnapshotSender::next
   // marks what the assembled replica lacks as changed): no delta grows past the budget.
   if (snapshot_->done()) snapshot_.reset();
-  return bytes;
 }
 
 void MapperNode::publishPoses() {
@@ -310,7 +329,7 @@ bool MapperNode::spinOnce(int timeout_ms) {
   const double t = now();
   if (t - last_update_ >= params_.update_period_s) {
     last_update_ = t;
-    if (snapshot_) publishSnapshotChunk();
+    if (snapshot_ && field_pacer_->ready()) publishSnapshotChunk();
     publishUpdate();
     publishPoses();
   }
@@ -349,9 +368,9 @@ void MapperNode::finish() {
   // bigger for it) and goes on between the steps of the outputs, which only read the field:
   // the end of a run takes the longer of the two, not their sum.
   const double flush_t0 = now();
-  Pacer pacer(params_.final_flush_mb_per_s);
+  const double flushed_mb = field_pacer_->megabytes();
   flushing_ = mapper_.field().initialized();
-  flushField(&pacer, false);
+  flushField(false);
   publishPoses();
   if (!out_dir_.empty()) {
     try {
@@ -360,7 +379,7 @@ void MapperNode::finish() {
           {params_.checkpoint_images, params_.render_stride, params_.mesh_iso,
            params_.mesh_max_faces, finalRenderThreads(),
            [&] {
-             flushField(&pacer, false);
+             flushField(false);
              heartbeat();
            }},
           nonKeyframeViews(frame_poses_, mapper_.keyframes(), kFrameRenderStride));
@@ -377,12 +396,12 @@ void MapperNode::finish() {
       throw;
     }
   }
-  flushField(&pacer, true);
+  flushField(true);
   if (mapper_.field().initialized()) {
     std::cerr << "radslam-mapper: final field version " << mapper_.field().version() << ", "
               << mapper_.field().totalBlocks() << " blocks, " << mapper_.keyframes().size()
-              << " keyframes; final flush " << pacer.megabytes() << " MB in " << now() - flush_t0
-              << " s\n";
+              << " keyframes; final flush " << field_pacer_->megabytes() - flushed_mb << " MB in "
+              << now() - flush_t0 << " s\n";
   }
   reporter_.setState(ProcessState::kDone);
   publishStatus();

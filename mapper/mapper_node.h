@@ -7,6 +7,7 @@
 #include <chrono>
 #include <cstdint>
 #include <map>
+#include <memory>
 #include <optional>
 #include <string>
 
@@ -25,6 +26,7 @@ class MapperNode {
  public:
   /// out_dir: where checkpoints and final outputs go ("" = no files).
   MapperNode(Bus* bus, const MapperNodeParams& params, std::string out_dir);
+  ~MapperNode();
 
   /// Continues from a checkpoint of an earlier run of this mapper (restart after a crash):
   /// field, optimiser and keyframes; replicas get a snapshot. Throws std::runtime_error naming
@@ -60,19 +62,20 @@ class MapperNode {
   class Pacer;
   void publishUpdate();  // the delta of one update period
   // The final flush, one message: false once everything went out.
-  bool publishFlushMessage(size_t* bytes);
-  // Flush messages while the pacer allows (to_end: until done, waiting for the pacer).
-  void flushField(Pacer* pacer, bool to_end);
+  bool publishFlushMessage();
+  // Flush messages while the FIELD limit allows (to_end: until done, waiting for it).
+  void flushField(bool to_end);
   /// Starts a snapshot (sent a chunk per update period) or, without a field yet, sends the
   /// empty one.
   void startSnapshot();
-  size_t publishSnapshotChunk();  // returns the payload bytes sent
+  void publishSnapshotChunk();
   int snapshotChunkBlocks() const { return std::max(1, params_.max_blocks_per_update * 3 / 4); }
   void publishPoses();
   void publishStatus();
   void heartbeat();  // publishStatus at most once per status period
   int finalRenderThreads() const;
-  size_t publishField(FieldUpdate* update);  // encoded as configured; returns payload bytes
+  // Encoded as configured, when it fits the FIELD limit (waits until then).
+  void publishField(FieldUpdate* update);
   void saveCheckpoint(const std::string& path);
   double now() const;
 
@@ -93,6 +96,7 @@ class MapperNode {
   std::string save_request_;  // checkpoint path asked for by CONTROL SAVE ("" = none)
   bool save_requested_ = false;
   std::chrono::steady_clock::time_point start_;
+  std::unique_ptr<Pacer> field_pacer_;  // every FIELD message (field_max_mb_per_s)
   double last_update_ = -1e9, last_status_ = -1e9, last_snapshot_ = -1e9, last_checkpoint_ = 0;
   int32_t max_keyframe_id_ = -1;             // highest keyframe id received
   std::map<int32_t, int> missing_requests_;  // times each missing id was asked for

@@ -99,7 +99,7 @@ MapperNodeParams loadMapperParams(const std::string& yaml_path,
   p.field_encoding = field_encoding == "zstd" ? FieldEncoding::kZstd : FieldEncoding::kRaw;
   r.get("status_period_s", &p.status_period_s);
   r.get("snapshot_min_period_s", &p.snapshot_min_period_s);
-  r.get("final_flush_mb_per_s", &p.final_flush_mb_per_s);
+  r.get("field_max_mb_per_s", &p.field_max_mb_per_s);
   r.get("final_training_s", &p.final_training_s);
   r.get("checkpoint_images", &p.checkpoint_images);
   r.get("checkpoint_period_s", &p.checkpoint_period_s);
@@ -112,12 +112,12 @@ MapperNodeParams loadMapperParams(const std::string& yaml_path,
   t.depth_loss = parseDepthLoss(depth_loss);
   if (p.update_period_s <= 0 || p.status_period_s <= 0 || p.final_training_s < 0 ||
       p.render_stride < 1 || p.snapshot_min_period_s < 0 || p.max_blocks_per_update < 1 ||
-      !(p.final_flush_mb_per_s > 0) || !(p.checkpoint_period_s >= 0) || p.mesh_max_faces < 1 ||
+      !(p.field_max_mb_per_s > 0) || !(p.checkpoint_period_s >= 0) || p.mesh_max_faces < 1 ||
       p.final_render_threads < 0)
     throw std::invalid_argument(
         "mapper: update_period_s and status_period_s must be > 0, final_training_s >= 0, "
         "render_stride >= 1, snapshot_min_period_s >= 0, max_blocks_per_update >= 1, "
-        "final_flush_mb_per_s > 0, checkpoint_period_s >= 0, mesh_max_faces >= 1, "
+        "field_max_mb_per_s > 0, checkpoint_period_s >= 0, mesh_max_faces >= 1, "
         "final_render_threads >= 0");
   if (dump) *dump = r.dump();
   if (source) *source = r.source();

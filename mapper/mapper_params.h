@@ -18,10 +18,10 @@ struct MapperNodeParams {
   // buffers (a lost update costs a snapshot).
   int max_blocks_per_update = 250;
   FieldEncoding field_encoding = FieldEncoding::kZstd;  // "zstd" | "raw" (lossless either way)
-  // The final flush (every block not yet sent, at the end of a run, when the sensors are
-  // quiet) is paced at this rate, between the final outputs, so that receivers' socket buffers
-  // do not overrun and FIELD stays within what a network shared with the sensors can carry.
-  double final_flush_mb_per_s = 2.0;
+  // FIELD traffic in any 1 s window stays within this (live updates wait for the next period,
+  // the final flush between the final outputs for room), so that receivers' socket buffers do
+  // not overrun and FIELD fits a network shared with the sensors.
+  double field_max_mb_per_s = 2.0;
   double snapshot_min_period_s = 10.0;  // snapshot requests in between are served together
   double status_period_s = 0.5;         // STATUS heartbeat
   double final_training_s = 5.0;        // training burst after a stop request

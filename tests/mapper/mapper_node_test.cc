@@ -127,8 +127,14 @@ TEST(MapperNode, FollowsKeyframesPublishesUpdatesAndWritesOutputs) {
   bus.publish(channel::kControl, save);
   for (int i = 0; i < 3; ++i) node.spinOnce(5);
   EXPECT_TRUE(std::filesystem::exists(save.argument));
-  // One snapshot, in chunks of at most max_blocks_per_update blocks, one per update period.
-  for (int i = 0; i < 200; ++i) node.spinOnce(5);
+  // One snapshot, in chunks of at most max_blocks_per_update blocks, one per update period
+  // (as the FIELD limit lets them go: up to a few seconds here).
+  auto snapshotSent = [&] {
+    for (const FieldUpdate& u : updates)
+      if (u.is_snapshot && u.chunk_index + 1 == u.chunk_count) return true;
+    return false;
+  };
+  for (int i = 0; i < 3000 && !snapshotSent(); ++i) node.spinOnce(5);
   std::set<int64_t> snapshot_ids;
   int chunks = 0, last_count = 0;
   for (const FieldUpdate& u : updates) {
@@ -151,6 +157,20 @@ TEST(MapperNode, FollowsKeyframesPublishesUpdatesAndWritesOutputs) {
   node.finish();
   bus.handle(0);
   EXPECT_EQ(statuses.back().state, ProcessState::kDone);
+
+  // FIELD stays within field_max_mb_per_s in every 1 s window (send times in header.utime).
+  const double limit = nodeParams().field_max_mb_per_s * 1e6;
+  double largest_window = 0;
+  for (size_t i = 0; i < updates.size(); ++i) {
+    double window = 0;
+    for (size_t j = i; j < updates.size() &&
+                       updates[j].header.utime < updates[i].header.utime + 1'000'000;
+         ++j)
+      for (const FieldBlock& b : updates[j].blocks) window += b.data.size();
+    largest_window = std::max(largest_window, window);
+  }
+  EXPECT_LE(largest_window, limit);
+  EXPECT_GT(largest_window, 0.5 * limit);  // the flush ran at the limit
 
   // A replica that applied the deltas in order (ignoring the snapshot) equals the final field.
   Field replica;
