@@ -18,6 +18,7 @@ namespace {
 using namespace ray_kernels;
 
 constexpr int kP = PreviewField::kSubPoints;
+static_assert(Field::kSubDim == 4, "2^3-cell groups: 2 per sub-block axis");
 constexpr int kMaxChannels = 1 + 3 * 4;
 // Offsets (in points) of a cell's 8 corners within a sub-block's points; corner c has
 // dx = c & 1, dy = (c >> 1) & 1, dz = c >> 2 (as kCornerOffset).
@@ -104,6 +105,9 @@ void PreviewField::reset(const FieldGeometry& geometry) {
   free_slots_.clear();
   dirty_.clear();
   dirty_flag_.clear();
+  grid_.clear();
+  grid_size_.setZero();
+  grid_stale_ = true;
 }
 
 void PreviewField::markDirty(int fine_block) {
@@ -148,6 +152,8 @@ int PreviewField::refresh(const Field& field, double budget_s) {
     have_geometry_ = false;
     blocks_.clear();
     dirty_.clear();
+    grid_.clear();
+    grid_size_.setZero();
     return 0;
   }
   const int fine = field.numLevels() - 1;
@@ -156,7 +162,8 @@ int PreviewField::refresh(const Field& field, double budget_s) {
     reset(field.geometry());
   FineBlock empty;
   std::fill(empty.slot, empty.slot + Field::kSubBlocks, -1);
-  std::fill(empty.bound, empty.bound + Field::kSubBlocks, -INFINITY);
+  std::fill(empty.sigma_bound, empty.sigma_bound + Field::kSubBlocks, 0.f);
+  std::fill(empty.empty_cells, empty.empty_cells + Field::kSubBlocks, 0xFF);
   empty.stored = 0;
   empty.baked = false;
   empty.index = Eigen::Vector3i::Zero();
@@ -177,6 +184,7 @@ int PreviewField::refresh(const Field& field, double budget_s) {
           if (slot >= 0) free_slots_.push_back(slot);
           slot = -1;
         }
+        grid_stale_ |= entry.stored != 0;
         entry.stored = 0;
         entry.baked = false;
       }
@@ -198,7 +206,54 @@ int PreviewField::refresh(const Field& field, double budget_s) {
     dirty_flag_[b] = 0;
     bakeBlock(field, b);
   }
+  if (grid_stale_) buildGrid();
   return staleBlocks();
+}
+
+void PreviewField::buildGrid() {
+  grid_stale_ = false;
+  Eigen::Vector3i lo = Eigen::Vector3i::Constant(INT_MAX), hi = Eigen::Vector3i::Constant(INT_MIN);
+  for (const FineBlock& entry : blocks_) {
+    if (!entry.stored) continue;
+    lo = lo.cwiseMin(entry.index);
+    hi = hi.cwiseMax(entry.index);
+  }
+  grid_.clear();
+  grid_size_.setZero();
+  if (lo.x() > hi.x()) return;
+  grid_min_ = lo;
+  grid_size_ = hi - lo + Eigen::Vector3i::Ones();
+  const int sx = grid_size_.x(), sy = grid_size_.y(), sz = grid_size_.z();
+  grid_.assign(size_t(sx) * sy * sz, -kMaxSkip);
+  for (int id = 0; id < static_cast<int>(blocks_.size()); ++id) {
+    if (!blocks_[id].stored) continue;
+    const Eigen::Vector3i c = blocks_[id].index - lo;
+    grid_[(size_t(c.z()) * sy + c.y()) * sx + c.x()] = id;
+  }
+  // Chessboard distance by two raster passes over the 13 neighbours before (then after) a
+  // cell: exact for unit steps to all 26 neighbours.
+  auto pass = [&](int sign) {
+    const int z0 = sign > 0 ? 0 : sz - 1, y0 = sign > 0 ? 0 : sy - 1, x0 = sign > 0 ? 0 : sx - 1;
+    for (int z = z0; z >= 0 && z < sz; z += sign)
+      for (int y = y0; y >= 0 && y < sy; y += sign)
+        for (int x = x0; x >= 0 && x < sx; x += sign) {
+          int32_t& cell = grid_[(size_t(z) * sy + y) * sx + x];
+          if (cell >= 0) continue;
+          int dist = -cell;
+          for (int dz = -1; dz <= 0; ++dz)
+            for (int dy = -1; dy <= 1; ++dy)
+              for (int dx = -1; dx <= 1; ++dx) {
+                if (dz == 0 && (dy > 0 || (dy == 0 && dx >= 0))) continue;  // not before
+                const int nx = x + sign * dx, ny = y + sign * dy, nz = z + sign * dz;
+                if (nx < 0 || ny < 0 || nz < 0 || nx >= sx || ny >= sy || nz >= sz) continue;
+                const int32_t n = grid_[(size_t(nz) * sy + ny) * sx + nx];
+                dist = std::min(dist, (n >= 0 ? 0 : -n) + 1);
+              }
+          cell = -dist;
+        }
+  };
+  pass(1);
+  pass(-1);
 }
 
 void PreviewField::bakeBlock(const Field& field, int fine_block) {
@@ -211,6 +266,7 @@ void PreviewField::bakeBlock(const Field& field, int fine_block) {
   int ratio[Field::kMaxLevels];
   for (int l = 0; l < levels; ++l) ratio[l] = fineRatio(field, l);
   FineBlock& entry = blocks_[fine_block];
+  const bool stored_before = entry.stored != 0;
   entry.baked = true;
   entry.index = index;
   uint16_t baked[kPointsPerSub * kMaxChannels];
@@ -279,12 +335,22 @@ void PreviewField::bakeBlock(const Field& field, int fine_block) {
               }
             }
       }
-      for (int p = 0; p < kPointsPerSub; ++p) {
+      for (int p = 0; p < kPointsPerSub; ++p)
         for (int ch = 0; ch < C; ++ch) baked[p * C + ch] = toBfloat16(sum[p * C + ch]);
-        bound = std::max(bound, fromBfloat16(baked[p * C]));
+      // Bounds of the 2^3-cell groups (their 3^3 points) and of the sub-block.
+      uint8_t empty_cells = 0;
+      for (int m = 0; m < 8; ++m) {
+        float group = -INFINITY;
+        for (int z = 2 * (m >> 2); z <= 2 * (m >> 2) + 2; ++z)
+          for (int y = 2 * ((m >> 1) & 1); y <= 2 * ((m >> 1) & 1) + 2; ++y)
+            for (int x = 2 * (m & 1); x <= 2 * (m & 1) + 2; ++x)
+              group = std::max(group, fromBfloat16(baked[((z * kP + y) * kP + x) * C]));
+        if (group < skip_raw_) empty_cells |= static_cast<uint8_t>(1u << m);
+        bound = std::max(bound, group);
       }
+      entry.empty_cells[s] = empty_cells;
     }
-    entry.bound[s] = bound;
+    entry.sigma_bound[s] = bound < skip_raw_ ? 0.f : softplus(bound) * field.densityScale();
     int32_t& slot = entry.slot[s];
     if (bound < skip_raw_) {
       if (slot >= 0) free_slots_.push_back(slot);
@@ -304,7 +370,39 @@ void PreviewField::bakeBlock(const Field& field, int fine_block) {
     }
     std::copy(baked, baked + kPointsPerSub * C, values_.data() + size_t(slot) * kPointsPerSub * C);
   }
+  grid_stale_ |= (entry.stored != 0) != stored_before;
 }
+
+namespace {
+
+// Where a ray leaves boxes of lattice cubes, in the fine lattice's units (p / voxel size): per
+// axis the face ahead, with the division done once per ray. Axes the ray does not move along
+// are never left.
+struct LatticeExits {
+  float origin[3], inv_dir[3];
+  bool positive[3];
+
+  LatticeExits(const Lanes& o, const Lanes& d) {
+    for (int k = 0; k < 3; ++k) {
+      origin[k] = o[k];
+      positive[k] = d[k] > 0;
+      inv_dir[k] = std::abs(d[k]) < 1e-12f ? 0.f : 1.f / d[k];
+    }
+  }
+  // The box of cubes lo .. hi of `edge` lattice units each.
+  float operator()(const int* lo, const int* hi, int edge) const {
+    float t = INFINITY;
+    for (int k = 0; k < 3; ++k) {
+      if (inv_dir[k] == 0) continue;
+      const float face = static_cast<float>((positive[k] ? hi[k] + 1 : lo[k]) * edge);
+      t = std::min(t, (face - origin[k]) * inv_dir[k]);
+    }
+    return t;
+  }
+  float operator()(const int* cube, int edge) const { return (*this)(cube, cube, edge); }
+};
+
+}  // namespace
 
 // The 4 channels of RGB fields: r += sum_k w[k] * corner k, on SSE2 lanes when there (the
 // same products and sums in the same order as the scalar loop).
@@ -328,34 +426,32 @@ void PreviewField::bakeBlock(const Field& field, int fine_block) {
 
 // The march of VolumeRenderer::march (volume_march.cc) on the baked sub-blocks: jumps over
 // unallocated blocks and empty sub-blocks, and samples a stored sub-block with its own step
-// (adaptive: from its density bound) from its points alone.
+// (adaptive: from its density bound) from its points alone, past its empty 2^3-cell groups.
 template <int NB>
 RayOutput PreviewField::marchImpl(const Field& field, const Ray& ray, const MarchParams& params,
                                   const Eigen::Vector3f& bg) const {
   constexpr int C = 1 + 3 * NB;
   MarchAccumulator acc;
-  if (field.empty() || blocks_.empty() || channels_ != C) return acc.finish(bg, params);
-  float t0, t1;
-  if (!intersectBox(ray, field.boundsMin(), field.boundsMax(), &t0, &t1)) t1 = -1;
-  t0 = std::max(t0, params.near);
-  t1 = std::min(t1, params.far);
+  if (field.empty() || grid_.empty() || channels_ != C) return acc.finish(bg, params);
   const int fine = field.numLevels() - 1;
   const float voxel = static_cast<float>(field.voxelSize(fine));
+  const float fine_edge = voxel * Field::kBlockDim;
+  float t0, t1;
+  if (!intersectBox(ray, grid_min_.cast<float>() * fine_edge,
+                    (grid_min_ + grid_size_).cast<float>() * fine_edge, &t0, &t1))
+    t1 = -1;
+  t0 = std::max(t0, params.near);
+  t1 = std::min(t1, params.far);
   const float inv = field.invVoxelSize(fine);
   const float scale = field.densityScale();
   const float fine_step = params.step_fine * voxel;
   const float max_step =
       std::max(fine_step, voxel * std::max(params.step_fine, params.max_step_fine));
   const bool adaptive = params.max_sample_thickness > 0;
-  const float coarse_edge = static_cast<float>(field.voxelSize(0)) * Field::kBlockDim;
-  const float inv_coarse_edge = 1.f / coarse_edge;
-  const float fine_edge = voxel * Field::kBlockDim;
-  const float sub_edge = voxel * Field::kSubDim;
-  const float nudge = 1e-3f * fine_step;  // past a face
+  const float nudge = 1e-3f * fine_step;  // past a face (m: t is the ray's parameter)
   const float basis[4] = {1.f, ray.view_dir.x(), ray.view_dir.y(), ray.view_dir.z()};
   const float o[3] = {ray.origin.x(), ray.origin.y(), ray.origin.z()};
   const float d[3] = {ray.dir.x(), ray.dir.y(), ray.dir.z()};
-  const int num_blocks = static_cast<int>(blocks_.size());
   // Samples are gathered in batches of 4 (across sub-blocks), shaded on lanes and composited
   // in ray order, which stops where the transmittance does (a batch may overshoot by 3).
   float tb[4] = {}, db[4] = {};
@@ -368,59 +464,68 @@ RayOutput PreviewField::marchImpl(const Field& field, const Ray& ray, const Marc
     opaque = !acc.addBatch<NB>(raw, decay, tb, n, basis, params.min_transmittance);
     n = 0;
   };
+  // Positions in fine lattice units: o_lattice + t * d_lattice.
+  const Lanes o_lattice = Lanes(o[0], o[1], o[2], 0) * inv;
+  const Lanes d_lattice = Lanes(d[0], d[1], d[2], 0) * inv;
+  const LatticeExits exits(o_lattice, d_lattice);
+  constexpr float kBelowSub = Field::kSubDim * (1 - 1e-6f);  // in a sub-block's last cell
   float t = t0;
-  int last_block[3] = {INT32_MIN, 0, 0};  // the fine block of the last visit, and its id
-  int id = -1;
   while (!opaque && t < t1) {
-    const float p[3] = {o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]};
-    int g[3];
-    for (int k = 0; k < 3; ++k) g[k] = static_cast<int>(std::floor(p[k] * inv));
-    const int fb[3] = {blockOf(g[0]), blockOf(g[1]), blockOf(g[2])};
-    if (fb[0] != last_block[0] || fb[1] != last_block[1] || fb[2] != last_block[2]) {
-      std::copy(fb, fb + 3, last_block);
-      id = field.findBlock(fine, fb[0], fb[1], fb[2]);
-      if (id >= num_blocks) id = -1;  // allocated since the last refresh
+    const Lanes q = o_lattice + t * d_lattice;
+    int g[3], fb[3];
+    bool inside = true;
+    for (int k = 0; k < 3; ++k) {
+      g[k] = floorToInt(q[k]);
+      fb[k] = blockOf(g[k]);
+      inside &= static_cast<unsigned>(fb[k] - grid_min_[k]) < static_cast<unsigned>(grid_size_[k]);
     }
-    if (id < 0 || blocks_[id].stored == 0) {
-      // Nothing stored: past the coarse block when that is unallocated too, else past the fine
-      // one.
-      int cb[3];
-      for (int k = 0; k < 3; ++k) cb[k] = static_cast<int>(std::floor(p[k] * inv_coarse_edge));
-      const float exit = id < 0 && field.findBlock(0, cb[0], cb[1], cb[2]) < 0
-                             ? cubeExit(ray, cb, coarse_edge)
-                             : cubeExit(ray, fb, fine_edge);
-      t = std::max(t + nudge, exit + nudge);
+    const int32_t cell =
+        inside ? grid_[(size_t(fb[2] - grid_min_.z()) * grid_size_.y() + (fb[1] - grid_min_.y())) *
+                           grid_size_.x() +
+                       (fb[0] - grid_min_.x())]
+               : -1;
+    if (cell < 0) {
+      // Nothing stored within -cell - 1 blocks: past that box of blocks.
+      const int r = -cell - 1;
+      const int lo[3] = {fb[0] - r, fb[1] - r, fb[2] - r}, hi[3] = {fb[0] + r, fb[1] + r, fb[2] + r};
+      t = std::max(t + nudge, exits(lo, hi, Field::kBlockDim) + nudge);
       continue;
     }
+    const int id = cell;
     int sub[3];
     for (int k = 0; k < 3; ++k) sub[k] = g[k] >> Field::kSubShift;
-    const float exit = std::min(t1, cubeExit(ray, sub, sub_edge));
+    const float exit = std::min(t1, exits(sub, Field::kSubDim));
     const int s = (sub[0] & 1) | ((sub[1] & 1) << 1) | ((sub[2] & 1) << 2);
     const FineBlock& entry = blocks_[id];
     if (entry.slot[s] < 0 || !(t < exit)) {
       t = std::max(t + nudge, exit + nudge);
       continue;
     }
-    const float step =
-        adaptive ? std::clamp(params.max_sample_thickness / (softplus(entry.bound[s]) * scale),
-                              fine_step, max_step)
-                 : fine_step;
+    const float step = adaptive ? std::clamp(params.max_sample_thickness / entry.sigma_bound[s],
+                                             fine_step, max_step)
+                                : fine_step;
     const uint16_t* values = values_.data() + size_t(entry.slot[s]) * kPointsPerSub * C;
-    const float origin[3] = {static_cast<float>(sub[0] * Field::kSubDim),
-                             static_cast<float>(sub[1] * Field::kSubDim),
-                             static_cast<float>(sub[2] * Field::kSubDim)};
-    for (; t < exit; t += step) {
-      int cell[3];
-      float w3[3][2];
-      for (int k = 0; k < 3; ++k) {
-        const float q = (o[k] + t * d[k]) * inv - origin[k];
-        cell[k] = std::clamp(static_cast<int>(std::floor(q)), 0, Field::kSubDim - 1);
-        const float f = std::clamp(q - cell[k], 0.f, 1.f);
-        w3[k][0] = 1 - f;
-        w3[k][1] = f;
+    const uint8_t empty_cells = entry.empty_cells[s];
+    const Lanes q0 = o_lattice - Lanes(static_cast<float>(sub[0] * Field::kSubDim),
+                                       static_cast<float>(sub[1] * Field::kSubDim),
+                                       static_cast<float>(sub[2] * Field::kSubDim), 0);
+    while (t < exit) {
+      // The cell within the sub-block (clamped to it: t may round past a face) and the
+      // position in it.
+      const Lanes qs = (q0 + t * d_lattice).max(0.f).min(kBelowSub);
+      const Eigen::Array4i cell = qs.cast<int>();
+      const Lanes f = qs - cell.cast<float>();
+      const int group = (cell[0] >> 1) | ((cell[1] >> 1) << 1) | ((cell[2] >> 1) << 2);
+      if (empty_cells >> group & 1) {
+        const int cube[3] = {sub[0] * 2 + (cell[0] >> 1), sub[1] * 2 + (cell[1] >> 1),
+                             sub[2] * 2 + (cell[2] >> 1)};
+        t = std::max(t + nudge, exits(cube, 2) + nudge);
+        continue;
       }
-      float w[8];
-      for (int k = 0; k < 8; ++k) w[k] = w3[0][k & 1] * w3[1][(k >> 1) & 1] * w3[2][k >> 2];
+      const Lanes wxy = Lanes(1 - f[0], f[0], 1 - f[0], f[0]) * Lanes(1 - f[1], 1 - f[1], f[1], f[1]);
+      alignas(16) float w[8];
+      Eigen::Map<Lanes, Eigen::Aligned16>{w} = wxy * (1 - f[2]);
+      Eigen::Map<Lanes, Eigen::Aligned16>{w + 4} = wxy * f[2];
       const uint16_t* base = values + ((cell[2] * kP + cell[1]) * kP + cell[0]) * C;
       float r[C];
       if constexpr (C == 4) {
@@ -433,6 +538,7 @@ RayOutput PreviewField::marchImpl(const Field& field, const Ray& ray, const Marc
       for (int ch = 0; ch < C; ++ch) raw[ch][n] = r[ch];
       tb[n] = t;
       db[n] = step;
+      t += step;
       if (++n == 4) {
         flush();
         if (opaque) break;

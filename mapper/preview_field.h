@@ -11,7 +11,12 @@
 /// cells read, stored together (no lookups across blocks), as bfloat16 (8 mantissa bits,
 /// rounded to nearest: at most 0.2% off, which the preview accepts for half the memory), with
 /// the raw density bias added. A sub-block whose density bound gives less than skip_thickness
-/// optical thickness per fine voxel stores nothing and is stepped over.
+/// optical thickness per fine voxel stores nothing and is stepped over; within a stored
+/// sub-block, so are its 2^3-cell corners below that threshold.
+///
+/// Empty space: a dense grid over the fine blocks that store something holds, per block, its
+/// id or its chessboard distance (in blocks) to the nearest such block, so a ray crosses free
+/// space in jumps of up to that many blocks without a hash lookup.
 #pragma once
 
 #include <cstdint>
@@ -60,7 +65,12 @@ class PreviewField {
  private:
   struct FineBlock {
     int32_t slot[Field::kSubBlocks];  // into values_ (kPointsPerSub * channels each), -1 = empty
-    float bound[Field::kSubBlocks];   // largest raw density (bias included) of the points
+    // softplus of the largest raw density (bias included) of a sub-block's points: its
+    // density bound, times Field::densityScale().
+    float sigma_bound[Field::kSubBlocks];
+    // Per sub-block, bit m: its 2^3 cells m (m = x + 2 y + 4 z, in 2-cell units) stay below
+    // the skip threshold, and samples there are skipped.
+    uint8_t empty_cells[Field::kSubBlocks];
     uint8_t stored;                   // bit s: sub-block s has a slot
     bool baked;                       // at least once
     Eigen::Vector3i index;            // the block's index when baked
@@ -69,6 +79,7 @@ class PreviewField {
   void markDependents(const Field& field, int level, int block);
   void markDirty(int fine_block);
   void bakeBlock(const Field& field, int fine_block);
+  void buildGrid();
   template <int NB>
   RayOutput marchImpl(const Field& field, const Ray& ray, const MarchParams& params,
                       const Eigen::Vector3f& background) const;
@@ -84,6 +95,14 @@ class PreviewField {
   std::vector<int32_t> free_slots_;
   std::deque<int> dirty_;  // fine blocks to bake, oldest first
   std::vector<uint8_t> dirty_flag_;
+  // The block grid (block units): cell (x, y, z) of grid_ is block grid_min_ + (x, y, z), x
+  // fastest; >= 0 a fine block id that stores a sub-block, < 0 minus the chessboard distance
+  // to the nearest one (at most kMaxSkip). Rebuilt when a block gains or loses its last
+  // stored sub-block.
+  static constexpr int kMaxSkip = 64;
+  Eigen::Vector3i grid_min_ = Eigen::Vector3i::Zero(), grid_size_ = Eigen::Vector3i::Zero();
+  std::vector<int32_t> grid_;
+  bool grid_stale_ = true;
 };
 
 }  // namespace radslam

@@ -18,6 +18,13 @@ namespace radslam::ray_kernels {
 
 using Corners = RayWorkspace::Corners;
 
+// floor(x) as an int, for |x| < 2^31: without SSE4.1, std::floor is a longer sequence with a
+// branch.
+[[gnu::always_inline]] inline int floorToInt(float x) {
+  const int i = static_cast<int>(x);
+  return i - (x < static_cast<float>(i));
+}
+
 // Offsets of the 8 cell corners within one block; corner c has dx = c & 1, dy = (c >> 1) & 1,
 // dz = c >> 2.
 constexpr int kCornerOffset[8] = {0,
@@ -148,19 +155,22 @@ inline bool evaluate(const Field& field, const float* p, Corners* corners, float
   return true;
 }
 
-// Ray parameter where the ray leaves the axis-aligned cube of edge `edge` (m) with integer
-// index `cube` (it spans cube * edge .. (cube + 1) * edge per axis). The index is the caller's,
-// found from the lattice as its lookups were: a cube found again from p here could round to the
-// neighbour at a face and jump over a whole block.
-inline float cubeExit(const Ray& ray, const int* cube, float edge) {
+// Ray parameter where the ray leaves the axis-aligned box of cubes of edge `edge` (m) with
+// integer indices lo .. hi (cube i spans i * edge .. (i + 1) * edge per axis). The indices are
+// the caller's, found from the lattice as its lookups were: a cube found again from p here
+// could round to the neighbour at a face and jump over a whole block.
+inline float boxExit(const Ray& ray, const int* lo, const int* hi, float edge) {
   float t_exit = INFINITY;
   for (int d = 0; d < 3; ++d) {
     const float dir = ray.dir[d];
     if (std::abs(dir) < 1e-12f) continue;
-    const float face = static_cast<float>(dir > 0 ? cube[d] + 1 : cube[d]) * edge;
+    const float face = static_cast<float>(dir > 0 ? hi[d] + 1 : lo[d]) * edge;
     t_exit = std::min(t_exit, (face - ray.origin[d]) / dir);
   }
   return t_exit;
+}
+inline float cubeExit(const Ray& ray, const int* cube, float edge) {
+  return boxExit(ray, cube, cube, edge);
 }
 
 // Colour from the raw coefficients: c_k = sigmoid(sum_j raw[1 + 3 j + k] basis[j]).

@@ -146,6 +146,44 @@ TEST(PreviewField, AReplacedFieldIsBakedAnew) {
       sameRender(renderBaked(fresh, field, kViews[0]), renderBaked(preview, field, kViews[0])));
 }
 
+TEST(PreviewField, JumpsThroughFreeSpaceWithoutMissingABlock) {
+  // Single fine blocks scattered through a 4 m box, several blocks apart: rays cross free space
+  // in the grid's long jumps, from several views, and must hit what the exact march hits.
+  Field field(FieldGeometry::make(0.03, 1, 2, 0, -4.6f));
+  Rng rng;
+  for (int i = 0; i < 60; ++i) {
+    const int b = field.allocateBlock(
+        0, Eigen::Vector3i(static_cast<int>(rng.uniform() * 16) - 8,
+                           static_cast<int>(rng.uniform() * 16) - 8,
+                           static_cast<int>(rng.uniform() * 16) + 2));
+    float* data = field.blockData(0, b);
+    for (int v = 0; v < Field::kBlockVoxels; ++v) {
+      data[v * field.channels()] = 6.f + rng.uniform();
+      for (int ch = 1; ch < field.channels(); ++ch) data[v * field.channels() + ch] = rng.uniform();
+    }
+  }
+  PreviewField preview(0.05f);
+  preview.refresh(field);
+  CameraModel wide = testCamera();
+  wide.fx = wide.fy = 25;
+  const VolumeRenderer renderer(Eigen::Vector3f(0.3f, 0.3f, 0.3f));
+  int hits = 0, mismatched = 0;
+  for (int k = 0; k < 6; ++k) {
+    const SE3 T(SO3::exp(Vec3(0.3 * k, -0.2 * k, 0.1)), Vec3(0.2 * k - 0.5, 0.1 * k, -0.5));
+    const RenderImages exact = renderer.render(field, T, wide, exactMarch());
+    const RenderImages baked =
+        preview.render(field, T, wide, exactMarch(), Eigen::Vector3f(0.3f, 0.3f, 0.3f));
+    for (int v = 0; v < exact.depth.rows; ++v)
+      for (int u = 0; u < exact.depth.cols; ++u) {
+        const bool a = exact.depth.at<float>(v, u) > 0, b = baked.depth.at<float>(v, u) > 0;
+        hits += a;
+        mismatched += a != b;
+      }
+  }
+  EXPECT_GT(hits, 6 * 64 * 48 / 20);
+  EXPECT_LE(mismatched, hits / 200);  // rays grazing an edge
+}
+
 TEST(PreviewField, ThinSubBlocksAreNotStored) {
   const Field field = makeRandomField(2, 4, 0);
   PreviewField all(0.f), thick(1.f);
