@@ -487,7 +487,8 @@ RayOutput PreviewField::marchImpl(const Field& field, const Ray& ray, const Marc
     if (cell < 0) {
       // Nothing stored within -cell - 1 blocks: past that box of blocks.
       const int r = -cell - 1;
-      const int lo[3] = {fb[0] - r, fb[1] - r, fb[2] - r}, hi[3] = {fb[0] + r, fb[1] + r, fb[2] + r};
+      const int lo[3] = {fb[0] - r, fb[1] - r, fb[2] - r},
+                hi[3] = {fb[0] + r, fb[1] + r, fb[2] + r};
       t = std::max(t + nudge, exits(lo, hi, Field::kBlockDim) + nudge);
       continue;
     }
@@ -522,7 +523,8 @@ RayOutput PreviewField::marchImpl(const Field& field, const Ray& ray, const Marc
         t = std::max(t + nudge, exits(cube, 2) + nudge);
         continue;
       }
-      const Lanes wxy = Lanes(1 - f[0], f[0], 1 - f[0], f[0]) * Lanes(1 - f[1], 1 - f[1], f[1], f[1]);
+      const Lanes wxy =
+          Lanes(1 - f[0], f[0], 1 - f[0], f[0]) * Lanes(1 - f[1], 1 - f[1], f[1], f[1]);
       alignas(16) float w[8];
       Eigen::Map<Lanes, Eigen::Aligned16>{w} = wxy * (1 - f[2]);
       Eigen::Map<Lanes, Eigen::Aligned16>{w + 4} = wxy * f[2];

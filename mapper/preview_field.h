@@ -71,9 +71,9 @@ class PreviewField {
     // Per sub-block, bit m: its 2^3 cells m (m = x + 2 y + 4 z, in 2-cell units) stay below
     // the skip threshold, and samples there are skipped.
     uint8_t empty_cells[Field::kSubBlocks];
-    uint8_t stored;                   // bit s: sub-block s has a slot
-    bool baked;                       // at least once
-    Eigen::Vector3i index;            // the block's index when baked
+    uint8_t stored;         // bit s: sub-block s has a slot
+    bool baked;             // at least once
+    Eigen::Vector3i index;  // the block's index when baked
   };
   void reset(const FieldGeometry& geometry);
   void markDependents(const Field& field, int level, int block);

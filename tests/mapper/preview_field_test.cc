@@ -152,10 +152,9 @@ TEST(PreviewField, JumpsThroughFreeSpaceWithoutMissingABlock) {
   Field field(FieldGeometry::make(0.03, 1, 2, 0, -4.6f));
   Rng rng;
   for (int i = 0; i < 60; ++i) {
-    const int b = field.allocateBlock(
-        0, Eigen::Vector3i(static_cast<int>(rng.uniform() * 16) - 8,
-                           static_cast<int>(rng.uniform() * 16) - 8,
-                           static_cast<int>(rng.uniform() * 16) + 2));
+    const int b = field.allocateBlock(0, Eigen::Vector3i(static_cast<int>(rng.uniform() * 16) - 8,
+                                                         static_cast<int>(rng.uniform() * 16) - 8,
+                                                         static_cast<int>(rng.uniform() * 16) + 2));
     float* data = field.blockData(0, b);
     for (int v = 0; v < Field::kBlockVoxels; ++v) {
       data[v * field.channels()] = 6.f + rng.uniform();
