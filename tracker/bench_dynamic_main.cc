@@ -10,6 +10,8 @@
 #include <string>
 #include <vector>
 
+#include <opencv2/imgcodecs.hpp>
+
 #include "common/camera.h"
 #include "common/cli.h"
 #include "common/evaluation.h"
@@ -40,6 +42,9 @@ const char* kUsage = R"(usage: radslam-bench-dynamic [options]
                      150, width 640)
   --fps F            frame rate of the rendered sequences, Hz (default: the scene's, 30 for rooms
                      and 10 for streets)
+  --segmentation-only  with --pipeline: only the run with masks withheld (its ATE and IoU)
+  --mask-dir DIR     with --pipeline: write each frame's true and segmented moving masks there
+                     (DIR/<scene>-<mode>-<frame>.png: true in red, segmented in green)
 )";
 
 constexpr double kDeg = 180.0 / M_PI;
@@ -250,8 +255,8 @@ cv::Mat trueMovingMask(const SyntheticScene& scene, const Frame& frame, int i) {
 /// gt_moving (optional, one per frame): the true moving masks the tracker's moving masks are
 /// scored against (intersection over union, resized to the tracker's working size).
 PipelineRun runTracker(const SyntheticScene& scene, const std::vector<Frame>& frames,
-                       const TrackerParams& params,
-                       const std::vector<cv::Mat>* gt_moving = nullptr) {
+                       const TrackerParams& params, const std::vector<cv::Mat>* gt_moving = nullptr,
+                       const std::string& mask_prefix = "") {
   Tracker tracker(params);
   std::vector<ObjectList> objects;
   double iou_sum = 0;
@@ -267,6 +272,13 @@ PipelineRun runTracker(const SyntheticScene& scene, const std::vector<Frame>& fr
       cv::resize(gt_full, gt, size, 0, 0, cv::INTER_NEAREST);
       const cv::Mat est =
           out.moving_mask.empty() ? cv::Mat(size, CV_8UC1, cv::Scalar(0)) : out.moving_mask;
+      if (!mask_prefix.empty()) {
+        cv::Mat overlay;
+        cv::merge(std::vector<cv::Mat>{cv::Mat::zeros(size, CV_8UC1), est, gt}, overlay);
+        char index[32];
+        std::snprintf(index, sizeof(index), "%04zu", i);
+        cv::imwrite(mask_prefix + index + ".png", overlay);
+      }
       const int uni = cv::countNonZero(gt | est);
       if (uni > 0) {
         iou_sum += static_cast<double>(cv::countNonZero(gt & est)) / uni;
@@ -309,7 +321,8 @@ PipelineRun runTracker(const SyntheticScene& scene, const std::vector<Frame>& fr
   return run;
 }
 
-int runPipeline(const std::vector<std::string>& scenes, int frames, int width, double fps) {
+int runPipeline(const std::vector<std::string>& scenes, int frames, int width, double fps,
+                bool segmentation_only, const std::string& mask_dir) {
   std::printf(
       "whole tracker, %d frames %dx%d with sensor noise (colour sigma 2, depth 0.0015 z^2); "
       "camera ATE (SE3, m);\nobject motion error per frame (mean t m / r deg) of the tracker's "
@@ -353,14 +366,20 @@ int runPipeline(const std::vector<std::string>& scenes, int frames, int width, d
       without.dynamic_objects = false;
       TrackerParams all_free = with;
       all_free.dynamic_classes = free_classes;
-      const PipelineRun dyn = runTracker(scene, moving_frames, with);
-      const PipelineRun no_dyn = runTracker(scene, moving_frames, without);
-      const PipelineRun frz = runTracker(frozen, frozen_frames, with);
-      const PipelineRun frz_no = runTracker(frozen, frozen_frames, without);
-      const PipelineRun free = runTracker(scene, moving_frames, all_free);
+      PipelineRun dyn, no_dyn, frz, frz_no, free;
+      if (!segmentation_only) {
+        dyn = runTracker(scene, moving_frames, with);
+        no_dyn = runTracker(scene, moving_frames, without);
+        frz = runTracker(frozen, frozen_frames, with);
+        frz_no = runTracker(frozen, frozen_frames, without);
+        free = runTracker(scene, moving_frames, all_free);
+      }
       TrackerParams segmenting = with;
       segmenting.motion_segmentation = true;
-      const PipelineRun seg = runTracker(scene, unlabelled_frames, segmenting, &gt_moving);
+      const std::string mask_prefix =
+          mask_dir.empty() ? "" : mask_dir + "/" + name + "-" + mode + "-";
+      const PipelineRun seg =
+          runTracker(scene, unlabelled_frames, segmenting, &gt_moving, mask_prefix);
       std::printf(
           "%-6s %3.0f %-6s | %8.4f %8.4f %8.4f %9.4f %6.2f | %8.4f %7.3f | %8.4f %7.3f | %5zu "
           "%5.1f | %8.4f %5.2f\n",
@@ -394,6 +413,8 @@ int run(int argc, char** argv) {
   const int frames = cli.getInt("frames", pipeline ? 150 : 60);
   const int width = cli.getInt("width", pipeline ? 640 : 320);
   const double fps = cli.getDouble("fps", 0);
+  const bool segmentation_only = cli.getBool("segmentation-only", false);
+  const std::string mask_dir = cli.get("mask-dir", "");
   ObjectNoise noise;
   noise.pixel_sigma = cli.getDouble("pixel-sigma", 1.0);
   noise.depth_sigma_rel = cli.getDouble("depth-noise", 0.002);
@@ -408,7 +429,7 @@ int run(int argc, char** argv) {
         "need frames >= 2, width >= 32, stride >= 1, window >= 2, pixel-sigma > 0, "
         "depth-noise > 0, 0 <= outliers < 1");
 
-  if (pipeline) return runPipeline(scenes, frames, width, fps);
+  if (pipeline) return runPipeline(scenes, frames, width, fps, segmentation_only, mask_dir);
   std::printf(
       "object motion error per frame, mean over frame pairs: translation m, rotation deg\n");
   std::printf("%-6s %-4s %-6s %-8s %5s | %16s | %16s | %16s | %5s | %s\n", "scene", "id", "class",

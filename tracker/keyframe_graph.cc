@@ -28,6 +28,7 @@ namespace {
 void releaseImages(KeyframeData* kf) {
   kf->color.release();
   kf->moving.release();
+  kf->depth.release();
   kf->grey.release();
   kf->structure.release();
   kf->sensor_inv_depth.release();

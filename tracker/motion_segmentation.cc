@@ -1,11 +1,14 @@
 #include "tracker/motion_segmentation.h"
 
+#include <algorithm>
 #include <cmath>
 #include <map>
 #include <stdexcept>
 #include <vector>
 
 #include <opencv2/imgproc.hpp>
+
+#include "common/camera.h"
 
 namespace radslam {
 
@@ -14,34 +17,106 @@ MotionSegmenter::MotionSegmenter(const MotionSegmentationParams& params)
   if (!(params.min_residual_px > 0) || !(params.depth_sigmas >= 0) ||
       !(params.relative_residual >= 0) || params.min_object_pixels < 1 || params.close_px < 0 ||
       !(params.min_overlap > 0 && params.min_overlap <= 1) || params.first_id < 1 ||
-      params.first_id > 65000) {
+      params.first_id > 65000 || !(params.depth_test_sigmas > 0)) {
     throw std::invalid_argument(
         "motion segmentation: need min_residual_px > 0, depth_sigmas >= 0, relative_residual >= 0, "
-        "min_object_pixels >= 1, close_px >= 0, min_overlap in (0, 1], first_id in [1, 65000]");
+        "min_object_pixels >= 1, close_px >= 0, min_overlap in (0, 1], first_id in [1, 65000], "
+        "depth_test_sigmas > 0");
   }
 }
 
+cv::Mat depthDisagreement(const cv::Mat& depth_a, const cv::Mat& depth_b, const cv::Mat& grey_a,
+                          const cv::Mat& grey_b, const cv::Mat& flow, const cv::Mat& depth_flow,
+                          const SE3& T_b_a, const CameraModel& camera, double sigma_a,
+                          double sigma_b, double sigma_z0, double max_grey_error, int radius) {
+  const cv::Size size(camera.width, camera.height);
+  CV_Assert(depth_a.type() == CV_32FC1 && depth_b.type() == CV_32FC1 && flow.type() == CV_32FC2 &&
+            depth_a.size() == size && depth_b.size() == size && flow.size() == size);
+  CV_Assert(depth_flow.empty() || (depth_flow.type() == CV_32FC1 && depth_flow.size() == size));
+  CV_Assert(grey_a.type() == CV_8UC1 && grey_b.type() == CV_8UC1 && grey_a.size() == size &&
+            grey_b.size() == size);
+  CV_Assert(radius >= 0);
+  const int W = size.width, H = size.height;
+  const auto sigma = [&](double z) { return sigma_a + sigma_b * (z - sigma_z0) * (z - sigma_z0); };
+  const Mat3 R = T_b_a.rotation();
+  const Vec3 t = T_b_a.translation();
+  // Per pixel z-score (0 and count 0 where not judged), then window sums.
+  cv::Mat score(size, CV_32FC1, cv::Scalar(0)), judged(size, CV_32FC1, cv::Scalar(0));
+  for (int y = 0; y < H; ++y) {
+    const float* za = depth_a.ptr<float>(y);
+    const cv::Vec2f* f = flow.ptr<cv::Vec2f>(y);
+    const float* df = depth_flow.empty() ? nullptr : depth_flow.ptr<float>(y);
+    for (int x = 0; x < W; ++x) {
+      if (!(za[x] > 0) || (df && !std::isfinite(df[x]))) continue;
+      const int xb = static_cast<int>(std::lround(x + f[x][0]));
+      const int yb = static_cast<int>(std::lround(y + f[x][1]));
+      if (!(xb >= 2 && yb >= 2 && xb < W - 2 && yb < H - 2)) continue;  // also NaN flow
+      // A flow that lands on another surface (thin poles, occlusions) compares other depths.
+      if (std::abs(grey_a.at<uint8_t>(y, x) - grey_b.at<uint8_t>(yb, xb)) > max_grey_error)
+        continue;
+      float lo = INFINITY, hi = 0;
+      for (int dy = -2; dy <= 2; ++dy)
+        for (int dx = -2; dx <= 2; ++dx) {
+          const float z = depth_b.at<float>(yb + dy, xb + dx);
+          lo = std::min(lo, z);
+          hi = std::max(hi, z);
+        }
+      if (!(lo > 0)) continue;  // a hole next to the landing point
+      const Vec3 p_b = R * unproject(camera, Eigen::Vector2d(x, y), za[x]) + t;
+      const double zb = depth_b.at<float>(yb, xb);
+      const double s_a = sigma(za[x]), s_b = sigma(zb), s_px = 0.25 * (hi - lo);
+      score.at<float>(y, x) =
+          static_cast<float>((zb - p_b.z()) / std::sqrt(s_a * s_a + s_b * s_b + s_px * s_px));
+      judged.at<float>(y, x) = 1;
+    }
+  }
+  const cv::Size window(2 * radius + 1, 2 * radius + 1);
+  cv::Mat sum, count;
+  cv::boxFilter(score, sum, -1, window, cv::Point(-1, -1), false, cv::BORDER_CONSTANT);
+  cv::boxFilter(judged, count, -1, window, cv::Point(-1, -1), false, cv::BORDER_CONSTANT);
+  cv::Mat out(size, CV_32FC1, cv::Scalar(NAN));
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x)
+      if (judged.at<float>(y, x) > 0)
+        out.at<float>(y, x) = sum.at<float>(y, x) / std::sqrt(count.at<float>(y, x));
+  return out;
+}
+
 cv::Mat MotionSegmenter::segment(const cv::Mat& measured, const cv::Mat& predicted,
-                                 const cv::Mat& depth_flow) {
+                                 const cv::Mat& depth_flow, const cv::Mat& depth_test) {
   CV_Assert(measured.type() == CV_32FC2 && predicted.type() == CV_32FC2 &&
             measured.size() == predicted.size());
   CV_Assert(depth_flow.empty() ||
             (depth_flow.type() == CV_32FC1 && depth_flow.size() == measured.size()));
+  CV_Assert(depth_test.empty() ||
+            (depth_test.type() == CV_32FC1 && depth_test.size() == measured.size()));
+  const float depth_z_max = static_cast<float>(params_.depth_test_sigmas);
   const int W = measured.cols, H = measured.rows;
   const float min_r = static_cast<float>(params_.min_residual_px);
   const float sigmas = static_cast<float>(params_.depth_sigmas);
   const float relative = static_cast<float>(params_.relative_residual);
-  // Moving pixels of a, carried into b along their measured flow.
-  cv::Mat moving_b(measured.size(), CV_8UC1, cv::Scalar(0));
+  // Pixels of a that the static scene does not explain.
+  cv::Mat moving_a(measured.size(), CV_8UC1, cv::Scalar(0));
   for (int y = 0; y < H; ++y) {
     const cv::Vec2f* m = measured.ptr<cv::Vec2f>(y);
     const cv::Vec2f* p = predicted.ptr<cv::Vec2f>(y);
     const float* d = depth_flow.empty() ? nullptr : depth_flow.ptr<float>(y);
+    const float* z = depth_test.empty() ? nullptr : depth_test.ptr<float>(y);
     for (int x = 0; x < W; ++x) {
+      if (z && std::abs(z[x]) > depth_z_max) moving_a.at<uint8_t>(y, x) = 255;
       const float du = m[x][0] - p[x][0], dv = m[x][1] - p[x][1];
       const float tolerance =
           min_r + relative * std::hypot(p[x][0], p[x][1]) + (d ? sigmas * d[x] : 0.f);
-      if (!(du * du + dv * dv > tolerance * tolerance)) continue;  // also NaN, inf
+      if (du * du + dv * dv > tolerance * tolerance) moving_a.at<uint8_t>(y, x) = 255;  // not NaN
+    }
+  }
+  // Moving pixels of a, carried into b along their measured flow.
+  cv::Mat moving_b(measured.size(), CV_8UC1, cv::Scalar(0));
+  for (int y = 0; y < H; ++y) {
+    const cv::Vec2f* m = measured.ptr<cv::Vec2f>(y);
+    const uint8_t* moving = moving_a.ptr<uint8_t>(y);
+    for (int x = 0; x < W; ++x) {
+      if (!moving[x]) continue;
       const int xb = static_cast<int>(std::lround(x + m[x][0]));
       const int yb = static_cast<int>(std::lround(y + m[x][1]));
       if (xb >= 0 && yb >= 0 && xb < W && yb < H) moving_b.at<uint8_t>(yb, xb) = 255;

@@ -7,13 +7,18 @@
 /// more than min_residual_px, plus relative_residual of the predicted flow, plus what the depth's
 /// uncertainty explains (depth_sigmas times the flow change of a one-sigma depth error), the
 /// pixel moved by itself; pixels of unknown depth
-/// (sky, beyond the sensor's range) cannot be judged. Those pixels are carried along the
-/// measured flow into b, closed, split into connected components, and components smaller than
-/// min_object_pixels are dropped. A component keeps the id of the previous frame's component it
-/// overlaps most (intersection over union at least min_overlap), or gets a new one.
+/// (sky, beyond the sensor's range) cannot be judged. With RGB-D depth, pixels whose depth in b
+/// disagrees with the static prediction move too (depthDisagreement): flow alone misses motion
+/// along the viewing ray. The moving pixels are carried along the measured flow into b, closed,
+/// split into connected components, and components smaller than min_object_pixels are dropped. A
+/// component keeps the id of the previous frame's component it overlaps most (intersection over
+/// union at least min_overlap), or gets a new one.
 #pragma once
 
 #include <opencv2/core.hpp>
+
+#include "common/lie.h"
+#include "common/types.h"
 
 namespace radslam {
 
@@ -23,10 +28,11 @@ struct MotionSegmentationParams {
   /// Fraction of the predicted flow allowed for: long flows (near ground under forward motion,
   /// many frames from the keyframe) fail by more.
   double relative_residual = 0.25;
-  int min_object_pixels = 400;  // working px of b; smaller components are noise
-  int close_px = 3;             // working px, radius of the closing that fills splat holes
-  double min_overlap = 0.3;     // IoU with a previous component to keep its id
-  int first_id = 200;           // instance ids handed out from here on (0 = static)
+  int min_object_pixels = 400;     // working px of b; smaller components are noise
+  int close_px = 3;                // working px, radius of the closing that fills splat holes
+  double min_overlap = 0.3;        // IoU with a previous component to keep its id
+  int first_id = 200;              // instance ids handed out from here on (0 = static)
+  double depth_test_sigmas = 4.0;  // |depth disagreement| (z-score) that makes a pixel move
 };
 
 class MotionSegmenter {
@@ -38,8 +44,12 @@ class MotionSegmenter {
   /// no depth. depth_flow (CV_32FC1, a's size, optional): working px the predicted flow moves by
   /// for a one-sigma error of a's depth (+inf: unknown depth). Returns b's instance mask
   /// (CV_16UC1, a's size, 0 = static): one id per moving object, stable across calls.
-  cv::Mat segment(const cv::Mat& measured, const cv::Mat& predicted,
-                  const cv::Mat& depth_flow = {});
+  /// depth_test (CV_32FC1, a's size, optional, NaN: not judged): depthDisagreement below;
+  /// pixels beyond depth_test_sigmas move too.
+  cv::Mat segment(const cv::Mat& measured, const cv::Mat& predicted, const cv::Mat& depth_flow = {},
+                  const cv::Mat& depth_test = {});
+
+  const MotionSegmentationParams& params() const { return params_; }
 
   /// Forgets the previous frame's components (ids are not reused).
   void reset() { previous_.release(); }
@@ -49,5 +59,24 @@ class MotionSegmenter {
   cv::Mat previous_;  // last instance mask
   int next_id_;
 };
+
+/// RGB-D evidence of motion along the viewing ray, which flow misses: an object ahead that
+/// drives with the camera stays put in the image while the static scene would expand. For
+/// each pixel of a with depth, the depth the static scene predicts in b (z of T_b_a p_a)
+/// against b's depth where the measured flow lands, in units of their standard deviation:
+/// sensor noise sigma_z = a + b (z - z0)^2 (m) of both, plus b's depth change per pixel around
+/// the landing point (a quarter of the range over 5 x 5 px: flow errors on slanted surfaces and
+/// at depth edges). The z-scores are averaged over a (2 radius + 1)^2 window and returned as
+/// the z-score of that mean (mean times the square root of the count). CV_32FC1, a's size;
+/// NaN where not judged: no depth in a or near the landing point, an untrusted flow
+/// (depth_flow infinite, see MotionSegmenter::segment), a landing outside b, or a grey value
+/// more than max_grey_error from a's (the flow landed on another surface: thin poles,
+/// occlusions). depth_a, depth_b CV_32FC1 (m, 0 = invalid), grey_a, grey_b CV_8UC1, flow
+/// CV_32FC2 a -> b, all of camera's size.
+cv::Mat depthDisagreement(const cv::Mat& depth_a, const cv::Mat& depth_b, const cv::Mat& grey_a,
+                          const cv::Mat& grey_b, const cv::Mat& flow, const cv::Mat& depth_flow,
+                          const SE3& T_b_a, const CameraModel& camera, double sigma_a,
+                          double sigma_b, double sigma_z0, double max_grey_error = 12,
+                          int radius = 2);
 
 }  // namespace radslam

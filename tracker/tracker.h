@@ -167,9 +167,10 @@ struct TrackerParams {
   double motion_residual_px = 2.0;
   int motion_min_pixels = 400;
   int motion_class_id = 250;
-  int motion_rounds = 2;                // segment, re-align without the objects, segment again
-  double motion_max_fraction = 0.5;     // of the image: more moving means the pose is wrong
-  int object_stride = 2;                // working px between an object's sample points
+  int motion_rounds = 2;                   // segment, re-align without the objects, segment again
+  double stereo_disparity_sigma_px = 0.5;  // working px: stereo depth noise for segmentation
+  double motion_max_fraction = 0.5;        // of the image: more moving means the pose is wrong
+  int object_stride = 2;                   // working px between an object's sample points
   double object_flow_smoothing_px = 4;  // working px (ObjectTrackerParams::flow_warp_smoothing_px)
 
   // Keyframe output (KEYFRAME messages at working resolution).

@@ -119,6 +119,7 @@ void validateTrackerParams(const TrackerParams& p) {
         "motion_residual_px > 0, motion_min_pixels >= 1, motion_class_id in [1, 65535]");
   check(p.motion_rounds >= 1 && p.motion_max_fraction > 0 && p.motion_max_fraction <= 1,
         "motion_rounds >= 1, motion_max_fraction in (0, 1]");
+  check(p.stereo_disparity_sigma_px > 0, "stereo_disparity_sigma_px > 0");
   check(p.object_flow_smoothing_px >= 0, "object_flow_smoothing_px must be >= 0");
   parseDynamicClasses(p.dynamic_classes);  // throws naming the bad item
 }
@@ -207,6 +208,7 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("motion_min_pixels", &p.motion_min_pixels);
   r.get("motion_class_id", &p.motion_class_id);
   r.get("motion_rounds", &p.motion_rounds);
+  r.get("stereo_disparity_sigma_px", &p.stereo_disparity_sigma_px);
   r.get("motion_max_fraction", &p.motion_max_fraction);
   r.get("object_flow_smoothing_px", &p.object_flow_smoothing_px);
   r.finish();
