@@ -31,8 +31,8 @@ struct KeyframeData {
   cv::Mat stereo_target, stereo_weight;  // the last stereo edge's correspondences (stereo only)
   cv::Mat moving;  // CV_8UC1 working resolution, 255 = moving object; empty: none (released
                    // with the colour)
-  cv::Mat depth;   // CV_32FC1 working resolution, m, 0 = invalid; RGB-D motion segmentation
-                   // only (released with the colour)
+  cv::Mat depth;   // CV_32FC1 working resolution, m, 0 = invalid; motion segmentation with
+                   // depth (RGB-D, stereo) only (released with the colour)
   /// Pose, BA-grid inverse depth (1/m, monocular: 1/scene unit) and the priors of the last BA.
   DenseBaKeyframe ba;
   /// RGB-D: sensor inverse depth (1/m) and its variance (1/m^2) on the grid; empty otherwise.

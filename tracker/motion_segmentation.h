@@ -7,12 +7,12 @@
 /// more than min_residual_px, plus relative_residual of the predicted flow, plus what the depth's
 /// uncertainty explains (depth_sigmas times the flow change of a one-sigma depth error), the
 /// pixel moved by itself; pixels of unknown depth
-/// (sky, beyond the sensor's range) cannot be judged. With RGB-D depth, pixels whose depth in b
-/// disagrees with the static prediction move too (depthDisagreement): flow alone misses motion
-/// along the viewing ray. The moving pixels are carried along the measured flow into b, closed,
-/// split into connected components, and components smaller than min_object_pixels are dropped. A
-/// component keeps the id of the previous frame's component it overlaps most (intersection over
-/// union at least min_overlap), or gets a new one.
+/// (sky, beyond the sensor's range) cannot be judged. With depth (RGB-D, stereo), pixels whose
+/// depth in b disagrees with the static prediction move too (depthDisagreement): flow alone misses
+/// motion along the viewing ray. The moving pixels are carried along the measured flow into b,
+/// closed, split into connected components, and components smaller than min_object_pixels are
+/// dropped. A component keeps the id of the previous frame's component it overlaps most
+/// (intersection over union at least min_overlap), or gets a new one.
 #pragma once
 
 #include <opencv2/core.hpp>
@@ -49,8 +49,6 @@ class MotionSegmenter {
   cv::Mat segment(const cv::Mat& measured, const cv::Mat& predicted, const cv::Mat& depth_flow = {},
                   const cv::Mat& depth_test = {});
 
-  const MotionSegmentationParams& params() const { return params_; }
-
   /// Forgets the previous frame's components (ids are not reused).
   void reset() { previous_.release(); }
 
@@ -60,10 +58,10 @@ class MotionSegmenter {
   int next_id_;
 };
 
-/// RGB-D evidence of motion along the viewing ray, which flow misses: an object ahead that
-/// drives with the camera stays put in the image while the static scene would expand. For
-/// each pixel of a with depth, the depth the static scene predicts in b (z of T_b_a p_a)
-/// against b's depth where the measured flow lands, in units of their standard deviation:
+/// Depth evidence (RGB-D sensor or stereo) of motion along the viewing ray, which flow misses: an
+/// object ahead that drives with the camera stays put in the image while the static scene would
+/// expand. For each pixel of a with depth, the depth the static scene predicts in b (z of T_b_a
+/// p_a) against b's depth where the measured flow lands, in units of their standard deviation:
 /// sensor noise sigma_z = a + b (z - z0)^2 (m) of both, plus b's depth change per pixel around
 /// the landing point (a quarter of the range over 5 x 5 px: flow errors on slanted surfaces and
 /// at depth edges). The z-scores are averaged over a (2 radius + 1)^2 window and returned as

@@ -158,7 +158,7 @@ struct Tracker::Impl {
   /// frame's instance and class masks from it (empty when nothing moves).
   std::unique_ptr<MotionSegmenter> segmenter;
   cv::Mat segmented_instance, segmented_class;
-  cv::Mat frame_depth;  // frameDepth's stereo depth of the current frame, once computed
+  cv::Mat frame_depth;  // stereo: the current frame's depth once frameDepth computed it
   /// The current frame's metric depth (CV_32FC1 working size, m, 0 = unknown): the sensor's
   /// (RGB-D) or from one more flow, left to right (stereo, computed once per frame); empty in
   /// monocular mode.
@@ -559,19 +559,21 @@ void Tracker::Impl::segmentMotion(const KeyframeData& ref, const PreparedImage& 
             : depthDisagreement(ref.depth, depth, ref.grey, image.grey, tracked->forward,
                                 depth_flow, aligned->T_world_frame.inverse() * ref.ba.T_world_cam,
                                 g.working, p.depth_sigma_a, depth_sigma_b, depth_sigma_z0);
+    // Most of the image disagreeing means the pose is wrong, not that the scene moves.
+    const auto too_much = [&](const cv::Mat& instance) {
+      return cv::countNonZero(instance) > p.motion_max_fraction * instance.total();
+    };
+    const cv::Mat predicted = predictedFlow(targets, g);
     const MotionSegmenter before = *segmenter;
-    cv::Mat instance =
-        segmenter->segment(tracked->forward, predictedFlow(targets, g), depth_flow, depth_test);
-    if (!depth_test.empty() &&
-        cv::countNonZero(instance) > p.motion_max_fraction * instance.total()) {
+    cv::Mat instance = segmenter->segment(tracked->forward, predicted, depth_flow, depth_test);
+    if (!depth_test.empty() && too_much(instance)) {
       // A pose that followed a large object makes the static scene disagree in depth nearly
       // everywhere (synthetic truck: 14.6 m ATE); then flow alone judges this round.
       *segmenter = before;
-      instance = segmenter->segment(tracked->forward, predictedFlow(targets, g), depth_flow);
+      instance = segmenter->segment(tracked->forward, predicted, depth_flow);
     }
+    if (too_much(instance)) return;
     const cv::Mat any = instance > 0;
-    // Most of the image disagreeing means the pose is wrong, not that the scene moves.
-    if (cv::countNonZero(any) > p.motion_max_fraction * any.total()) return;
     if (cv::countNonZero(any) == 0) {
       segmented_instance.release();
       segmented_class.release();
