@@ -72,6 +72,7 @@ MapperNode::MapperNode(Bus* bus, const MapperNodeParams& params, std::string out
   bus_->subscribe<Keyframe>(channel::kKeyframe, [this](const Keyframe& k) { onKeyframe(k); });
   bus_->subscribe<PoseStamped>(channel::kPose, [this](const PoseStamped& p) { onPose(p); });
   bus_->subscribe<Control>(channel::kControl, [this](const Control& c) { onControl(c); });
+  bus_->subscribe<Status>(channel::kStatus, [this](const Status& s) { onStatus(s); });
   reporter_.setState(ProcessState::kIdle);
 }
 
@@ -116,6 +117,17 @@ void MapperNode::onPose(const PoseStamped& pose) {
   if (pose.frame_index % kFrameRenderStride == 0) frame_poses_[pose.frame_index] = pose;
 }
 
+void MapperNode::onStatus(const Status& status) {
+  if (status.process.rfind("renderer", 0) != 0) return;
+  ReplicaState& r = replicas_[{status.process, status.pid}];
+  r.heard_at = listen_s_;
+  r.done = status.state == ProcessState::kDone;
+  for (const auto& [key, value] : status.values) {
+    if (key == "field_version") r.field_version = static_cast<int64_t>(value);
+    if (key == "waiting_for_snapshot") r.waiting_snapshot = value != 0;
+  }
+}
+
 void MapperNode::onControl(const Control& control) {
   if (!control.target.empty() && control.target != "mapper") return;
   switch (control.command) {
@@ -137,6 +149,8 @@ void MapperNode::onControl(const Control& control) {
       mapper_.reset();
       queue_.clear();
       frame_poses_.clear();
+      published_poses_.clear();
+      unpublished_poses_.clear();
       snapshot_requested_ = true;  // replicas start over from the empty field
       break;
   }
@@ -251,9 +265,26 @@ void MapperNode::publishSnapshotChunk() {
   if (snapshot_->done()) snapshot_.reset();
 }
 
-void MapperNode::publishPoses() {
-  for (const RefinedPose& p : mapper_.takeRefinedPoses()) {
-    if (!params_.publish_poses) continue;
+void MapperNode::publishPoses(bool all) {
+  if (!params_.publish_poses) {
+    mapper_.takeRefinedPoses();
+    return;
+  }
+  for (const RefinedPose& p : mapper_.takeRefinedPoses()) unpublished_poses_[p.keyframe_id] = p;
+  const double min_rad = params_.pose_publish_min_deg * M_PI / 180;
+  for (auto it = unpublished_poses_.begin(); it != unpublished_poses_.end();) {
+    const RefinedPose& p = it->second;
+    // Training moves every pose a little each period: below the deadband it waits (for the
+    // final poses, or until it has moved enough).
+    auto last = published_poses_.find(p.keyframe_id);
+    if (!all && last != published_poses_.end()) {
+      const SE3 delta = last->second.inverse() * p.T_world_cam;
+      if (delta.translation().norm() < params_.pose_publish_min_m &&
+          Eigen::AngleAxisd(delta.quaternion()).angle() < min_rad) {
+        ++it;
+        continue;
+      }
+    }
     PoseStamped msg;
     msg.header = p.header;
     const int k = mapper_.keyframes().find(p.keyframe_id);
@@ -263,6 +294,8 @@ void MapperNode::publishPoses() {
     msg.T_world_cam = p.T_world_cam;
     if (k >= 0) msg.covariance = mapper_.keyframes().entry(k).keyframe.covariance;
     bus_->publish(kMapperPoseChannel, msg);
+    published_poses_[p.keyframe_id] = p.T_world_cam;
+    it = unpublished_poses_.erase(it);
   }
 }
 
@@ -371,7 +404,7 @@ void MapperNode::finish() {
   const double flushed_mb = field_pacer_->megabytes();
   flushing_ = mapper_.field().initialized();
   flushField(false);
-  publishPoses();
+  publishPoses(true);
   if (!out_dir_.empty()) {
     try {
       const MapperOutputSummary s = writeMapperOutputs(
@@ -405,6 +438,40 @@ void MapperNode::finish() {
   }
   reporter_.setState(ProcessState::kDone);
   publishStatus();
+  awaitReplicas();
+}
+
+void MapperNode::awaitReplicas() {
+  constexpr double kRecentS = 3.0;  // a renderer silent for this much listening time is gone
+  if (!mapper_.field().initialized()) return;
+  const double t0 = now();
+  const auto lagging = [&] {
+    // (A snapshot may leave blocks to send after it: the version to reach is the current one.)
+    const int64_t final_version = mapper_.field().version();
+    int n = 0;
+    for (const auto& [id, r] : replicas_)
+      n += !r.done && listen_s_ - r.heard_at < kRecentS &&
+           (r.field_version != final_version || r.waiting_snapshot);
+    return n;
+  };
+  while (lagging() > 0 && now() - t0 < params_.final_sync_s) {
+    const double t = now();
+    const int handled = bus_->handle(50);
+    listen_s_ += now() - t;
+    if (handled < 0) break;
+    if (snapshot_requested_ || snapshot_) {
+      flushing_ = true;
+      flushField(true);
+    }
+    heartbeat();
+  }
+  if (const int n = lagging(); n > 0) {
+    std::cerr << "radslam-mapper: warning: " << n << " renderer(s) still not at field version "
+              << mapper_.field().version() << " after " << params_.final_sync_s << " s\n";
+  } else if (now() - t0 > 1.0) {
+    std::cerr << "radslam-mapper: the renderers heard from are at the final field version after "
+              << now() - t0 << " s\n";
+  }
 }
 
 int MapperNode::run() {

@@ -57,6 +57,10 @@ class MapperNode {
   void onKeyframe(const Keyframe& keyframe);
   void onPose(const PoseStamped& pose);
   void onControl(const Control& control);
+  void onStatus(const Status& status);
+  /// After the final flush: serves snapshots until every renderer heard from in the last few
+  /// seconds reports the final version, for at most final_sync_s.
+  void awaitReplicas();
   void addQueuedKeyframes();
   void requestMissingKeyframes();
   class Pacer;
@@ -70,7 +74,9 @@ class MapperNode {
   void startSnapshot();
   void publishSnapshotChunk();
   int snapshotChunkBlocks() const { return std::max(1, params_.max_blocks_per_update * 3 / 4); }
-  void publishPoses();
+  // Refined poses that moved past the deadband since last published (all: every one not yet
+  // published as it is).
+  void publishPoses(bool all = false);
   void publishStatus();
   void heartbeat();  // publishStatus at most once per status period
   int finalRenderThreads() const;
@@ -87,7 +93,9 @@ class MapperNode {
   std::map<int32_t, Keyframe> queue_;  // latest version per id, waiting to be added
   /// Latest tracked pose per frame index (the tracker re-publishes refined poses at the end).
   std::map<int64_t, PoseStamped> frame_poses_;
-  int64_t delta_base_ = 0;  // version of the last published delta update
+  std::map<int32_t, SE3> published_poses_;            // MAPPER_POSE: last sent per keyframe id
+  std::map<int32_t, RefinedPose> unpublished_poses_;  // refined since, within the deadband
+  int64_t delta_base_ = 0;                            // version of the last published delta update
   bool snapshot_requested_ = false;
   std::optional<SnapshotSender> snapshot_;
   bool flushing_ = false;  // the final flush is under way
@@ -101,6 +109,16 @@ class MapperNode {
   int32_t max_keyframe_id_ = -1;             // highest keyframe id received
   std::map<int32_t, int> missing_requests_;  // times each missing id was asked for
   double last_missing_request_ = -1e9;
+  struct ReplicaState {
+    int64_t field_version = -1;
+    bool waiting_snapshot = false;
+    bool done = false;    // its run ended: it takes no more updates
+    double heard_at = 0;  // listen_s_ when its last STATUS came
+  };
+  // Time spent waiting for renderers' STATUS after the final flush (s): a renderer silent for
+  // kRecentS of it is gone (a count of wall time would also count the mapper's own busy time).
+  double listen_s_ = 0;
+  std::map<std::pair<std::string, int32_t>, ReplicaState> replicas_;  // by (process, pid)
   int64_t rays_ = 0;
   double train_s_ = 0;
   TrainStats last_stats_;

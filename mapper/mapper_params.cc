@@ -101,6 +101,7 @@ MapperNodeParams loadMapperParams(const std::string& yaml_path,
   r.get("snapshot_min_period_s", &p.snapshot_min_period_s);
   r.get("field_max_mb_per_s", &p.field_max_mb_per_s);
   r.get("final_training_s", &p.final_training_s);
+  r.get("final_sync_s", &p.final_sync_s);
   r.get("checkpoint_images", &p.checkpoint_images);
   r.get("checkpoint_period_s", &p.checkpoint_period_s);
   r.get("render_stride", &p.render_stride);
@@ -108,14 +109,18 @@ MapperNodeParams loadMapperParams(const std::string& yaml_path,
   getFloat(r, "mesh_iso", &p.mesh_iso);
   r.get("mesh_max_faces", &p.mesh_max_faces);
   r.get("publish_poses", &p.publish_poses);
+  r.get("pose_publish_min_m", &p.pose_publish_min_m);
+  r.get("pose_publish_min_deg", &p.pose_publish_min_deg);
   r.finish();
   t.depth_loss = parseDepthLoss(depth_loss);
   if (p.update_period_s <= 0 || p.status_period_s <= 0 || p.final_training_s < 0 ||
+      !(p.final_sync_s >= 0) || !(p.pose_publish_min_m >= 0) || !(p.pose_publish_min_deg >= 0) ||
       p.render_stride < 1 || p.snapshot_min_period_s < 0 || p.max_blocks_per_update < 1 ||
       !(p.field_max_mb_per_s > 0) || !(p.checkpoint_period_s >= 0) || p.mesh_max_faces < 1 ||
       p.final_render_threads < 0)
     throw std::invalid_argument(
         "mapper: update_period_s and status_period_s must be > 0, final_training_s >= 0, "
+        "final_sync_s >= 0, pose_publish_min_m and pose_publish_min_deg >= 0, "
         "render_stride >= 1, snapshot_min_period_s >= 0, max_blocks_per_update >= 1, "
         "field_max_mb_per_s > 0, checkpoint_period_s >= 0, mesh_max_faces >= 1, "
         "final_render_threads >= 0");

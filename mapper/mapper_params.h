@@ -26,7 +26,11 @@ struct MapperNodeParams {
   double snapshot_min_period_s = 10.0;  // snapshot requests in between are served together
   double status_period_s = 0.5;         // STATUS heartbeat
   double final_training_s = 5.0;        // training burst after a stop request
-  bool checkpoint_images = true;        // checkpoints carry the keyframe images (to resume)
+  // After the final flush, snapshots are served until every renderer heard from reports the
+  // final field version, for at most this long (s): a replica that lost the last update has no
+  // later one to reveal the gap, only this STATUS's version.
+  double final_sync_s = 20.0;
+  bool checkpoint_images = true;  // checkpoints carry the keyframe images (to resume)
   // A checkpoint (OUT/mapper.ckpt) this often while running, for a restart to resume from
   // (s, 0 = only at the end; each is about 3 copies of the field).
   double checkpoint_period_s = 0;
@@ -36,6 +40,10 @@ struct MapperNodeParams {
   float mesh_iso = 1.f;          // final mesh: optical thickness per fine voxel
   int mesh_max_faces = 4000000;  // final mesh: a coarser lattice beyond (~100 MB PLY)
   bool publish_poses = true;     // refined keyframe poses on MAPPER_POSE
+  // A refined pose is published again once it moved this far from the last one sent (m, deg),
+  // and at the end of the run whatever it moved.
+  double pose_publish_min_m = 1e-3;
+  double pose_publish_min_deg = 0.05;
 };
 
 /// Reads yaml_path's "mapper" section ("" = defaults) with "key=value" overrides; *dump gets

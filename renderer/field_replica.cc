@@ -77,6 +77,11 @@ void FieldReplica::requestSnapshot(const std::string& reason) {
   if (request_snapshot_) request_snapshot_(reason);
 }
 
+void FieldReplica::missedUpdate(const std::string& reason) {
+  ++gaps_;
+  if (!waiting_snapshot_) requestSnapshot(reason);
+}
+
 void FieldReplica::retryStalledSnapshot(double now_s, double stall_s) {
   now_s_ = now_s;
   if (waiting_snapshot_ && now_s - last_progress_s_ > stall_s) {

@@ -49,6 +49,10 @@ class FieldReplica {
   /// Asks again for a snapshot asked for more than stall_s ago (s) that made no progress since
   /// (a lost request or a lost chunk). now_s: any monotonic clock, s.
   void retryStalledSnapshot(double now_s, double stall_s);
+  /// An update known to exist that never arrived (the mapper's STATUS reports a newer version
+  /// than the last update received: the last update of a run leaves no later one to show the
+  /// gap). Counts as a gap; asks for a snapshot unless one is on its way.
+  void missedUpdate(const std::string& reason);
   int64_t gaps() const { return gaps_; }
 
   /// The mapper's march parameters for this field (what render() uses by default).

@@ -120,7 +120,7 @@ RendererNode::RendererNode(Bus* bus, RendererParams params, std::string out_dir)
   bus_->subscribe<Keyframe>(channel::kKeyframe, [this](const Keyframe& k) { onKeyframe(k); });
   bus_->subscribe<PoseStamped>(channel::kGroundTruth,
                                [this](const PoseStamped& p) { viewer_.addGroundTruth(p); });
-  bus_->subscribe<Status>(channel::kStatus, [this](const Status& s) { viewer_.setStatus(s); });
+  bus_->subscribe<Status>(channel::kStatus, [this](const Status& s) { onStatus(s); });
   bus_->subscribe<ObjectList>(channel::kObjects,
                               [this](const ObjectList& o) { viewer_.addObjects(o); });
   bus_->subscribe<Control>(channel::kControl, [this](const Control& c) { onControl(c); });
@@ -167,6 +167,7 @@ RenderResult RendererNode::render(const RenderRequest& request, bool preview) co
 }
 
 void RendererNode::onField(const FieldUpdate& update) {
+  field_received_version_ = update.version;
   pending_updates_.push_back(update);
   // A bounded queue: past it the bus thread waits for the renders (reader-preferring locks
   // could otherwise keep it waiting while the queue grows).
@@ -233,6 +234,19 @@ void RendererNode::onKeyframe(const Keyframe& keyframe) {
   viewer_.addKeyframe(keyframe.keyframe_id);
 }
 
+void RendererNode::onStatus(const Status& status) {
+  viewer_.setStatus(status);
+  if (status.process != "mapper") return;
+  for (const auto& [key, value] : status.values) {
+    if (key != "field_version") continue;
+    if (mapper_reported_version_ > field_received_version_)
+      missed_update_ = "the mapper reported field version " +
+                       std::to_string(mapper_reported_version_) + ", the last update received is " +
+                       std::to_string(field_received_version_);
+    mapper_reported_version_ = static_cast<int64_t>(value);
+  }
+}
+
 void RendererNode::onControl(const Control& control) {
   if (!control.target.empty() && control.target != "renderer") return;
   if (control.command == ControlCommand::kStop) control_stop_ = true;
@@ -276,6 +290,7 @@ void RendererNode::publishStatus(ProcessState state) {
   reporter_.setValue("renders", static_cast<double>(renders_));
   reporter_.setValue("bad_requests", static_cast<double>(bad_requests_));
   reporter_.setValue("snapshots_requested", static_cast<double>(snapshots_requested_));
+  reporter_.setValue("waiting_for_snapshot", waitingForSnapshot() ? 1 : 0);
   reporter_.setValue("keyframes", static_cast<double>(keyframes_.size()));
   reporter_.setValue("preview_stale_blocks", static_cast<double>(replica_.previewStaleBlocks()));
   const Status s = reporter_.make();
@@ -297,7 +312,11 @@ int RendererNode::spinOnce(int timeout_ms) {
   {
     // A periodic check: skipped while a render holds the replica (the bus thread never waits).
     std::unique_lock<std::shared_mutex> lock(field_mutex_, std::try_to_lock);
-    if (lock) replica_.retryStalledSnapshot(now * 1e-6, kSnapshotStallS);
+    if (lock) {
+      replica_.retryStalledSnapshot(now * 1e-6, kSnapshotStallS);
+      if (!missed_update_.empty()) replica_.missedUpdate(missed_update_);
+      missed_update_.clear();
+    }
   }
   heartbeat(ProcessState::kRunning);
   return handled;

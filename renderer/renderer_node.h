@@ -92,6 +92,7 @@ class RendererNode {
   void onRenderRequest(const RenderRequest& request);
   void onPose(const PoseStamped& pose);
   void onKeyframe(const Keyframe& keyframe);
+  void onStatus(const Status& status);
   void onControl(const Control& control);
   void followLoop();
   void publishStatus(ProcessState state);
@@ -111,6 +112,11 @@ class RendererNode {
   CameraModel last_camera_;
   int64_t renders_ = 0, bad_requests_ = 0, snapshots_requested_ = 0;
   int64_t last_status_us_ = 0;
+  // Lost-update check against the mapper's STATUS (bus thread): a version the mapper reported
+  // on its previous STATUS must have arrived by its next one (FIELD goes out before it).
+  int64_t field_received_version_ = 0;   // of the last FIELD message received
+  int64_t mapper_reported_version_ = 0;  // on the mapper's last STATUS
+  std::string missed_update_;            // why an update is missing ("" = none), to report
   bool control_stop_ = false;
   std::atomic<bool> stop_follow_{false};
   std::thread follow_thread_;

@@ -5,6 +5,7 @@
 
 #include <stdlib.h>
 
+#include <chrono>
 #include <filesystem>
 #include <fstream>
 #include <set>
@@ -109,7 +110,6 @@ TEST(MapperNode, FollowsKeyframesPublishesUpdatesAndWritesOutputs) {
   ASSERT_FALSE(statuses.empty());
   EXPECT_EQ(statuses.back().process, "mapper");
   EXPECT_NE(statuses.back().last_error.find("keyframe 9"), std::string::npos);
-  EXPECT_FALSE(poses.empty());  // pose refinement started (warm-up 200 rays)
 
   // Snapshots and checkpoints on request; other targets are ignored.
   Control snapshot;
@@ -158,14 +158,27 @@ TEST(MapperNode, FollowsKeyframesPublishesUpdatesAndWritesOutputs) {
   bus.handle(0);
   EXPECT_EQ(statuses.back().state, ProcessState::kDone);
 
+  // MAPPER_POSE: refined poses as they move past the deadband, and the final one of every
+  // refined keyframe (not the first: it holds the gauge) at the end.
+  std::map<int64_t, SE3> last_pose;
+  for (const PoseStamped& p : poses) last_pose[p.frame_index] = p.T_world_cam;
+  const KeyframeStore& store = node.mapper().keyframes();
+  ASSERT_EQ(last_pose.size(), static_cast<size_t>(store.size() - 1));
+  // Not one per keyframe and update period: 46 here, 1759 without the deadband.
+  EXPECT_LT(poses.size(), 40 * last_pose.size());
+  for (int k = 0; k < store.size(); ++k) {
+    const int64_t frame = store.entry(k).keyframe.frame_index;
+    if (!last_pose.count(frame)) continue;
+    EXPECT_EQ((last_pose[frame].inverse() * store.entry(k).T_world_cam).log().norm(), 0) << frame;
+  }
+
   // FIELD stays within field_max_mb_per_s in every 1 s window (send times in header.utime).
   const double limit = nodeParams().field_max_mb_per_s * 1e6;
   double largest_window = 0;
   for (size_t i = 0; i < updates.size(); ++i) {
     double window = 0;
-    for (size_t j = i; j < updates.size() &&
-                       updates[j].header.utime < updates[i].header.utime + 1'000'000;
-         ++j)
+    for (size_t j = i;
+         j < updates.size() && updates[j].header.utime < updates[i].header.utime + 1'000'000; ++j)
       for (const FieldBlock& b : updates[j].blocks) window += b.data.size();
     largest_window = std::max(largest_window, window);
   }
@@ -292,6 +305,62 @@ TEST(MapperNode, ResumesFromACheckpointAsksForKeyframesAndResyncsReplicas) {
   }
   ASSERT_TRUE(exact);
   EXPECT_TRUE(replica.sameContent(second.mapper().field()));
+}
+
+TEST(MapperNode, AfterTheFinalFlushServesASnapshotToARendererThatLostTheLastUpdate) {
+  const SyntheticScene scene = smallRoom(20);
+  Bus bus("memq://", "SYNCTEST_", "test");
+  MapperNodeParams params = nodeParams();
+  params.final_sync_s = 30;
+  MapperNode node(&bus, params, "");
+  bus.publish(channel::kKeyframe, keyframeOf(scene, 0, 0));
+  bus.publish(channel::kKeyframe, keyframeOf(scene, 10, 1));
+  for (int i = 0; i < 20; ++i) ASSERT_TRUE(node.spinOnce(5));
+
+  // A renderer that lost every update: it learns so from the mapper's final STATUS, asks for a
+  // snapshot then, and reports its version as it goes.
+  Field replica;
+  SnapshotAssembler assembler;
+  bool asked = false;
+  const auto report = [&] {
+    Status s;
+    s.process = "renderer";
+    s.pid = 1;
+    s.state = ProcessState::kRunning;
+    s.values = {{"field_version", static_cast<double>(replica.version())},
+                {"waiting_for_snapshot", replica.initialized() ? 0.0 : 1.0}};
+    bus.publish(channel::kStatus, s);
+  };
+  bus.subscribe<Status>(channel::kStatus, [&](const Status& s) {
+    if (s.process != "mapper" || s.state != ProcessState::kDone || asked) return;
+    asked = true;
+    Control c;
+    c.command = ControlCommand::kSnapshot;
+    c.target = "mapper";
+    bus.publish(channel::kControl, c);
+  });
+  bus.subscribe<FieldUpdate>(channel::kField, [&](const FieldUpdate& u) {
+    if (!asked) return;  // lost
+    std::string error;
+    if (u.is_snapshot) {
+      if (assembler.add(u, &error) == SnapshotAssembler::Result::kComplete)
+        replica = std::move(assembler.field());
+    } else if (replica.initialized()) {
+      EXPECT_EQ(applyFieldUpdate(u, &replica, &error), ApplyResult::kApplied) << error;
+    }
+    report();
+  });
+  report();
+  bus.handle(0);
+
+  const auto t0 = std::chrono::steady_clock::now();
+  node.finish();
+  EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
+            params.final_sync_s);
+  EXPECT_TRUE(asked);
+  ASSERT_TRUE(replica.initialized());
+  EXPECT_EQ(replica.version(), node.mapper().field().version());
+  EXPECT_TRUE(replica.sameContent(node.mapper().field()));
 }
 
 TEST(Mapper, KeyframeBoundRetiresTheOlderOfTheClosestPair) {

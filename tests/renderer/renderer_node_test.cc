@@ -122,6 +122,53 @@ TEST(RendererNode, JoinsLateAnswersRequestsAndWritesFinalOutputs) {
   std::filesystem::remove_all(out);
 }
 
+TEST(RendererNode, AsksForASnapshotWhenTheMappersStatusReportsAVersionThatNeverCame) {
+  Bus bus("memq://", "RNDLOST_", "test");
+  RendererParams params;
+  params.follow_width = 0;
+  RendererNode node(&bus, params, "");
+  std::vector<Control> controls;
+  bus.subscribe<Control>(channel::kControl, [&](const Control& c) { controls.push_back(c); });
+  const auto mapper_status = [&](int64_t version) {
+    Status s;
+    s.process = "mapper";
+    s.values = {{"field_version", static_cast<double>(version)}};
+    bus.publish(channel::kStatus, s);
+    for (int i = 0; i < 5; ++i) node.spinOnce(1);
+  };
+
+  DemoFieldOptions options;
+  options.train_steps = 2;
+  std::vector<Keyframe> keyframes;
+  auto mapper = makeDemoMapper(options, &keyframes);
+  const FieldUpdate first = mapper->makeUpdate(0);
+  bus.publish(channel::kField, first);
+  mapper_status(first.version);
+  mapper_status(first.version);
+  EXPECT_TRUE(controls.empty());  // in step
+  EXPECT_EQ(node.fieldVersion(), first.version);
+
+  // The last update of the run is lost: no later one shows the gap, the STATUS after it does
+  // (one STATUS later, so that an update on its way is not taken for lost).
+  mapper->train(2);
+  const FieldUpdate lost = mapper->makeUpdate(first.version);
+  ASSERT_GT(lost.version, first.version);
+  mapper_status(lost.version);
+  EXPECT_TRUE(controls.empty());
+  mapper_status(lost.version);
+  ASSERT_EQ(controls.size(), 1u);
+  EXPECT_EQ(controls[0].command, ControlCommand::kSnapshot);
+  EXPECT_TRUE(node.waitingForSnapshot());
+  mapper_status(lost.version);
+  EXPECT_EQ(controls.size(), 1u);  // asked once until the snapshot comes
+
+  bus.publish(channel::kField, mapper->makeSnapshot());
+  ASSERT_TRUE(spinUntil(&node, [&] { return !node.waitingForSnapshot(); }));
+  EXPECT_EQ(node.fieldVersion(), mapper->field().version());
+  mapper_status(mapper->field().version());
+  EXPECT_EQ(controls.size(), 1u);
+}
+
 TEST(RendererParams, UnknownKeysAndBadValuesAreErrors) {
   const std::string dir = tempDir();
   const std::string path = dir + "/r.yaml";
