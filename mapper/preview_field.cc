@@ -429,9 +429,11 @@ struct LatticeExits {
 // (adaptive: from its density bound) from its points alone, past its empty 2^3-cell groups.
 template <int NB>
 RayOutput PreviewField::marchImpl(const Field& field, const Ray& ray, const MarchParams& params,
-                                  const Eigen::Vector3f& bg) const {
+                                  const Eigen::Vector3f& bg, float t_start,
+                                  float* first_sample_t) const {
   constexpr int C = 1 + 3 * NB;
   MarchAccumulator acc;
+  if (first_sample_t) *first_sample_t = INFINITY;
   if (field.empty() || grid_.empty() || channels_ != C) return acc.finish(bg, params);
   const int fine = field.numLevels() - 1;
   const float voxel = static_cast<float>(field.voxelSize(fine));
@@ -440,7 +442,7 @@ RayOutput PreviewField::marchImpl(const Field& field, const Ray& ray, const Marc
   if (!intersectBox(ray, grid_min_.cast<float>() * fine_edge,
                     (grid_min_ + grid_size_).cast<float>() * fine_edge, &t0, &t1))
     t1 = -1;
-  t0 = std::max(t0, params.near);
+  t0 = std::max({t0, params.near, t_start});
   t1 = std::min(t1, params.far);
   const float inv = field.invVoxelSize(fine);
   const float scale = field.densityScale();
@@ -538,6 +540,7 @@ RayOutput PreviewField::marchImpl(const Field& field, const Ray& ray, const Marc
           for (int ch = 0; ch < C; ++ch) r[ch] += w[k] * fromBfloat16(base[kCorner[k] * C + ch]);
       }
       for (int ch = 0; ch < C; ++ch) raw[ch][n] = r[ch];
+      if (first_sample_t && *first_sample_t == INFINITY) *first_sample_t = t;
       tb[n] = t;
       db[n] = step;
       t += step;
@@ -552,16 +555,47 @@ RayOutput PreviewField::marchImpl(const Field& field, const Ray& ray, const Marc
 }
 
 RayOutput PreviewField::march(const Field& field, const Ray& ray, const MarchParams& params,
-                              const Eigen::Vector3f& background) const {
-  return field.colorBasis() == 4 ? marchImpl<4>(field, ray, params, background)
-                                 : marchImpl<1>(field, ray, params, background);
+                              const Eigen::Vector3f& background, float t_start,
+                              float* first_sample_t) const {
+  return field.colorBasis() == 4
+             ? marchImpl<4>(field, ray, params, background, t_start, first_sample_t)
+             : marchImpl<1>(field, ray, params, background, t_start, first_sample_t);
 }
 
 RenderImages PreviewField::render(const Field& field, const SE3& T_world_cam,
                                   const CameraModel& camera, const MarchParams& params,
                                   const Eigen::Vector3f& background, int threads) const {
-  return renderPinhole(T_world_cam, camera, threads,
-                       [&](const Ray& ray) { return march(field, ray, params, background); });
+  // Pass 1: pixel (i, j) of a camera of half the focal length looks along pixel (2i, 2j).
+  CameraModel even = camera;
+  even.width = (camera.width + 1) / 2;
+  even.height = (camera.height + 1) / 2;
+  even.fx /= 2;
+  even.fy /= 2;
+  even.cx /= 2;
+  even.cy /= 2;
+  std::vector<RayOutput> even_out(size_t(even.width) * even.height);
+  std::vector<float> even_first(even_out.size());
+  if (even.width > 0 && even.height > 0)
+    renderPinhole(T_world_cam, even, threads, [&](const Ray& ray, int i, int j) {
+      const size_t k = size_t(j) * even.width + i;
+      even_out[k] = march(field, ray, params, background, -INFINITY, &even_first[k]);
+      return even_out[k];
+    });
+  // Pass 2. t is the camera's z (rays are not normalised), so a margin of one block in t is at
+  // least one block along the ray.
+  const float margin =
+      static_cast<float>(field.voxelSize(std::max(0, field.numLevels() - 1))) * Field::kBlockDim;
+  return renderPinhole(T_world_cam, camera, threads, [&](const Ray& ray, int u, int v) {
+    const int i0 = u / 2, j0 = v / 2;
+    if (u % 2 == 0 && v % 2 == 0) return even_out[size_t(j0) * even.width + i0];
+    const int i1 = std::min(even.width - 1, (u + 1) / 2),
+              j1 = std::min(even.height - 1, (v + 1) / 2);
+    const auto [nearest, farthest] = std::minmax(
+        {even_first[size_t(j0) * even.width + i0], even_first[size_t(j0) * even.width + i1],
+         even_first[size_t(j1) * even.width + i0], even_first[size_t(j1) * even.width + i1]});
+    const float start = farthest < INFINITY ? nearest - margin : -INFINITY;
+    return march(field, ray, params, background, start);
+  });
 }
 
 }  // namespace radslam

@@ -19,6 +19,7 @@
 /// space in jumps of up to that many blocks without a hash lookup.
 #pragma once
 
+#include <cmath>
 #include <cstdint>
 #include <deque>
 #include <vector>
@@ -55,9 +56,17 @@ class PreviewField {
 
   /// VolumeRenderer::march on this copy of `field` (the field refresh() last saw; blocks
   /// allocated since are empty). params.skip_thickness is ignored: the one baked in applies.
+  /// The march starts at t_start when that is past the ray's entry; first_sample_t (when
+  /// given) receives the t of its first sample (+inf: none).
   RayOutput march(const Field& field, const Ray& ray, const MarchParams& params,
-                  const Eigen::Vector3f& background) const;
-  /// A pinhole view, as VolumeRenderer::render.
+                  const Eigen::Vector3f& background, float t_start = -INFINITY,
+                  float* first_sample_t = nullptr) const;
+  /// A pinhole view, as VolumeRenderer::render, in two passes. Every second pixel of every
+  /// second row is marched whole. Every other pixel starts one fine block before the first
+  /// sample of the nearest of those pixels (up to 2 x 2 of them) when all of them took one,
+  /// which steps over the free space in front of a surface without visiting it; a structure
+  /// more than a block in front of all of them that only the pixels between them see is
+  /// missed. A pixel next to one that met nothing is marched whole.
   RenderImages render(const Field& field, const SE3& T_world_cam, const CameraModel& camera,
                       const MarchParams& params, const Eigen::Vector3f& background,
                       int threads = 1) const;
@@ -82,7 +91,8 @@ class PreviewField {
   void buildGrid();
   template <int NB>
   RayOutput marchImpl(const Field& field, const Ray& ray, const MarchParams& params,
-                      const Eigen::Vector3f& background) const;
+                      const Eigen::Vector3f& background, float t_start,
+                      float* first_sample_t) const;
 
   float skip_thickness_;
   float skip_raw_;  // raw density (bias included) below which a sub-block is empty

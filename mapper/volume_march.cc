@@ -351,11 +351,11 @@ RenderImages VolumeRenderer::render(const Field& field, const SE3& T_world_cam,
                                     const CameraModel& camera, const MarchParams& params,
                                     int threads) const {
   return renderPinhole(T_world_cam, camera, threads,
-                       [&](const Ray& ray) { return march(field, ray, params); });
+                       [&](const Ray& ray, int, int) { return march(field, ray, params); });
 }
 
 RenderImages renderPinhole(const SE3& T_world_cam, const CameraModel& camera, int threads,
-                           const std::function<RayOutput(const Ray&)>& march_ray) {
+                           const std::function<RayOutput(const Ray&, int u, int v)>& march_ray) {
   if (camera.width <= 0 || camera.height <= 0 || !(camera.fx > 0) || !(camera.fy > 0))
     throw std::invalid_argument("render: camera needs positive size and focal lengths, got " +
                                 std::to_string(camera.width) + "x" + std::to_string(camera.height));
@@ -382,7 +382,7 @@ RenderImages renderPinhole(const SE3& T_world_cam, const CameraModel& camera, in
           for (int u = u0; u < u1; ++u) {
             const Eigen::Vector3d cam_dir((u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy,
                                           1);
-            const RayOutput r = march_ray(makeRay(T_world_cam, cam_dir));
+            const RayOutput r = march_ray(makeRay(T_world_cam, cam_dir), u, v);
             color[u] = cv::Vec3f(r.color[0], r.color[1], r.color[2]);
             depth[u] = r.depth;
             sigma[u] = std::sqrt(std::max(0.f, r.var));

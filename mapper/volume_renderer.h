@@ -224,10 +224,11 @@ class VolumeRenderer {
 };
 
 /// Renders a pinhole view (distortion ignored) ray by ray, in square tiles on `threads`
-/// threads; march_ray gives each ray's output. Deterministic: pixels are independent. Throws
+/// threads; march_ray(ray, u, v) gives the output of pixel (u, v). Deterministic: pixels are
+/// independent. Throws
 /// std::invalid_argument on a camera without positive size and focal lengths.
 RenderImages renderPinhole(const SE3& T_world_cam, const CameraModel& camera, int threads,
-                           const std::function<RayOutput(const Ray&)>& march_ray);
+                           const std::function<RayOutput(const Ray&, int u, int v)>& march_ray);
 
 /// Entry and exit of a ray in the box [lo, hi] (t may be negative); false when it misses.
 bool intersectBox(const Ray& ray, const Eigen::Vector3f& lo, const Eigen::Vector3f& hi,

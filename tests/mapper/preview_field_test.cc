@@ -183,6 +183,86 @@ TEST(PreviewField, JumpsThroughFreeSpaceWithoutMissingABlock) {
   EXPECT_LE(mismatched, hits / 200);  // rays grazing an edge
 }
 
+TEST(PreviewField, AMarchStartsWhereAskedAndReportsItsFirstSample) {
+  const Field field = makeRandomField(2, 2, 0);
+  PreviewField preview(0.05f);
+  preview.refresh(field);
+  const MarchParams live = exactMarch();
+  const Eigen::Vector3f bg(0.3f, 0.3f, 0.3f);
+  const float block = static_cast<float>(field.voxelSize(1)) * Field::kBlockDim;
+  const CameraModel cam = testCamera();
+  int hit = 0, missed = 0;
+  for (int v = 0; v < cam.height; v += 3)
+    for (int u = 0; u < cam.width; u += 3) {
+      const Ray ray =
+          makeRay(kViews[1], Eigen::Vector3d((u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, 1));
+      float first = 0;
+      const RayOutput whole = preview.march(field, ray, live, bg, -INFINITY, &first);
+      if (first == INFINITY) {
+        EXPECT_EQ(whole.samples, 0);
+        ++missed;
+        continue;
+      }
+      ++hit;
+      // From a block before the first sample: the same samples; from past it: fewer.
+      const RayOutput near = preview.march(field, ray, live, bg, first - block);
+      EXPECT_NEAR(near.color[0], whole.color[0], 1e-3f);
+      EXPECT_NEAR(near.depth, whole.depth, 1e-3f);
+      EXPECT_NEAR(near.samples, whole.samples, 1);
+      float later = 0;
+      const RayOutput past = preview.march(field, ray, live, bg, first + 0.1f, &later);
+      EXPECT_LT(past.samples, whole.samples);
+      EXPECT_GE(later, first + 0.1f);
+    }
+  EXPECT_GT(hit, 20);
+  EXPECT_GT(missed, 0);
+}
+
+TEST(PreviewField, TwoPassRenderMatchesTheRayByRayMarch) {
+  // render() starts the rays between every second pixel near their neighbours' first sample:
+  // on the random field and on scattered single blocks (edges everywhere), it must give what
+  // marching every ray whole gives, but for the odd ray at a structure's edge.
+  MarchParams live = exactMarch();
+  live.max_sample_thickness = 0.05f;
+  const Eigen::Vector3f bg(0.3f, 0.3f, 0.3f);
+  Field scattered(FieldGeometry::make(0.03, 1, 2, 0, -4.6f));
+  Rng rng;
+  for (int i = 0; i < 60; ++i) {
+    const int b =
+        scattered.allocateBlock(0, Eigen::Vector3i(static_cast<int>(rng.uniform() * 8) - 4,
+                                                   static_cast<int>(rng.uniform() * 8) - 4,
+                                                   static_cast<int>(rng.uniform() * 16) + 2));
+    float* data = scattered.blockData(0, b);
+    for (int k = 0; k < Field::kBlockVoxels * scattered.channels(); ++k)
+      data[k] = k % scattered.channels() == 0 ? 6.f : rng.uniform();
+  }
+  Field random_field = makeRandomField(2, 2, 0);
+  for (const Field* field : {&random_field, &scattered}) {
+    PreviewField preview(0.05f);
+    preview.refresh(*field);
+    const CameraModel cam = testCamera();
+    for (const SE3& T : kViews) {
+      const RenderImages two_pass = preview.render(*field, T, cam, live, bg);
+      const RenderImages whole = renderPinhole(T, cam, 1, [&](const Ray& ray, int, int) {
+        return preview.march(*field, ray, live, bg);
+      });
+      int hits = 0, mismatched = 0;
+      for (int v = 0; v < cam.height; ++v)
+        for (int u = 0; u < cam.width; ++u) {
+          const float a = whole.depth.at<float>(v, u), b = two_pass.depth.at<float>(v, u);
+          hits += a > 0;
+          mismatched += (a > 0) != (b > 0);
+          if (a > 0 && b > 0) {
+            EXPECT_NEAR(a, b, 0.01f);
+          }
+        }
+      EXPECT_GT(hits, static_cast<int>(cam.width * cam.height / 20));
+      EXPECT_LE(mismatched, hits / 100);
+      EXPECT_GT(colorPsnr(whole.color, two_pass.color), 40.0);
+    }
+  }
+}
+
 TEST(PreviewField, ThinSubBlocksAreNotStored) {
   const Field field = makeRandomField(2, 4, 0);
   PreviewField all(0.f), thick(1.f);
