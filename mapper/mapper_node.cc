@@ -192,15 +192,21 @@ void MapperNode::requestKeyframes(const std::string& which) {
 }
 
 void MapperNode::publishUpdate() {
-  // Past the FIELD limit the update waits for the next period (its blocks stay changed).
-  if (!field_pacer_->ready()) return;
-  // While a snapshot is sent, its chunks take the rest of the period's blocks.
-  const int blocks = snapshot_ ? std::max(1, params_.max_blocks_per_update - snapshotChunkBlocks())
-                               : params_.max_blocks_per_update;
-  FieldUpdate u = mapper_.makeUpdate(delta_base_, blocks);
-  if (u.blocks.empty()) return;
-  publishField(&u);
-  delta_base_ = u.version;
+  // Past the FIELD limit the rest waits for the next period (its blocks stay changed).
+  int blocks = params_.max_blocks_per_update;
+  for (int chunks = snapshot_ ? blocks * 3 / 4 : 0;
+       chunks > 0 && snapshot_ && field_pacer_->ready();) {
+    const int sent = std::max(1, publishSnapshotChunk());
+    chunks -= sent;
+    blocks -= sent;
+  }
+  while (blocks > 0 && field_pacer_->ready()) {
+    FieldUpdate u = mapper_.makeUpdate(delta_base_, std::min(blocks, blocksPerMessage()));
+    if (u.blocks.empty()) return;
+    blocks -= static_cast<int>(u.blocks.size());
+    publishField(&u);
+    delta_base_ = u.version;
+  }
 }
 
 bool MapperNode::publishFlushMessage() {
@@ -210,7 +216,7 @@ bool MapperNode::publishFlushMessage() {
     publishSnapshotChunk();
     return true;
   }
-  FieldUpdate u = mapper_.makeUpdate(delta_base_, params_.max_blocks_per_update);
+  FieldUpdate u = mapper_.makeUpdate(delta_base_, blocksPerMessage());
   if (!u.blocks.empty()) {
     publishField(&u);
     delta_base_ = u.version;
@@ -235,6 +241,15 @@ void MapperNode::flushField(bool to_end) {
   }
 }
 
+int MapperNode::blocksPerMessage() const {
+  if (!mapper_.field().initialized()) return params_.max_blocks_per_update;
+  const double raw_block_bytes =
+      static_cast<double>(Field::kBlockVoxels) * mapper_.field().channels() * sizeof(float);
+  const double budget = 0.25 * params_.field_max_mb_per_s * 1e6;  // bytes
+  return static_cast<int>(std::clamp(budget / raw_block_bytes, 1.0,
+                                     static_cast<double>(params_.max_blocks_per_update)));
+}
+
 void MapperNode::publishField(FieldUpdate* u) {
   encodeFieldUpdate(params_.field_encoding, u);
   const size_t bytes = payloadBytes(*u);
@@ -254,15 +269,16 @@ void MapperNode::startSnapshot() {
   // One chunk per update period next to a smaller delta: a snapshot never outgrows the FIELD
   // rate (a whole one would be one message of the whole field), and the live view of the
   // replicas that do not need it keeps moving.
-  snapshot_.emplace(mapper_.makeSnapshotSender(++snapshot_seq_, snapshotChunkBlocks()));
+  snapshot_.emplace(mapper_.makeSnapshotSender(++snapshot_seq_, blocksPerMessage()));
 }
 
-void MapperNode::publishSnapshotChunk() {
+int MapperNode::publishSnapshotChunk() {
   FieldUpdate u = snapshot_->next();
   publishField(&u);
   // The deltas go on from delta_base_, the version of the last chunk (SnapshotSender::next
   // marks what the assembled replica lacks as changed): no delta grows past the budget.
   if (snapshot_->done()) snapshot_.reset();
+  return static_cast<int>(u.blocks.size());
 }
 
 void MapperNode::publishPoses(bool all) {
@@ -362,7 +378,6 @@ bool MapperNode::spinOnce(int timeout_ms) {
   const double t = now();
   if (t - last_update_ >= params_.update_period_s) {
     last_update_ = t;
-    if (snapshot_ && field_pacer_->ready()) publishSnapshotChunk();
     publishUpdate();
     publishPoses();
   }

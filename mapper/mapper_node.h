@@ -64,7 +64,9 @@ class MapperNode {
   void addQueuedKeyframes();
   void requestMissingKeyframes();
   class Pacer;
-  void publishUpdate();  // the delta of one update period
+  // One update period's FIELD messages: max_blocks_per_update blocks, of which a snapshot in
+  // progress takes 3/4 in chunks, while the FIELD limit allows.
+  void publishUpdate();
   // The final flush, one message: false once everything went out.
   bool publishFlushMessage();
   // Flush messages while the FIELD limit allows (to_end: until done, waiting for it).
@@ -72,8 +74,12 @@ class MapperNode {
   /// Starts a snapshot (sent a chunk per update period) or, without a field yet, sends the
   /// empty one.
   void startSnapshot();
-  void publishSnapshotChunk();
-  int snapshotChunkBlocks() const { return std::max(1, params_.max_blocks_per_update * 3 / 4); }
+  int publishSnapshotChunk();  // returns its blocks
+  // Blocks per FIELD message: at most max_blocks_per_update, and at most a quarter of a
+  // second's FIELD limit even uncompressed. A message is one unit for the pacer, so its size
+  // is how far a receiver that sees messages bunched can measure past the limit (250 trained
+  // blocks made messages of 1.8 MB, and a receiver measured 2.0 MB/s at a limit of 1.8).
+  int blocksPerMessage() const;
   // Refined poses that moved past the deadband since last published (all: every one not yet
   // published as it is).
   void publishPoses(bool all = false);

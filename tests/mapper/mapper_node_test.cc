@@ -67,7 +67,10 @@ TEST(MapperNode, FollowsKeyframesPublishesUpdatesAndWritesOutputs) {
   const SyntheticScene scene = smallRoom(41);
   const std::string out = tempDir();
   Bus bus("memq://", "MAPTEST_", "test");
-  MapperNode node(&bus, nodeParams(), out);
+  // A block budget that messages of a quarter of the FIELD limit must split (54 RGB blocks).
+  MapperNodeParams params = nodeParams();
+  params.max_blocks_per_update = 200;
+  MapperNode node(&bus, params, out);
 
   std::vector<FieldUpdate> updates;
   std::vector<Status> statuses;
@@ -141,7 +144,7 @@ TEST(MapperNode, FollowsKeyframesPublishesUpdatesAndWritesOutputs) {
     if (!u.is_snapshot) continue;
     snapshot_ids.insert(u.snapshot_id);
     EXPECT_EQ(u.chunk_index, chunks);
-    EXPECT_LE(static_cast<int>(u.blocks.size()), nodeParams().max_blocks_per_update);
+    EXPECT_LE(static_cast<int>(u.blocks.size()), params.max_blocks_per_update);
     ++chunks;
     last_count = u.chunk_count;
   }
@@ -184,6 +187,17 @@ TEST(MapperNode, FollowsKeyframesPublishesUpdatesAndWritesOutputs) {
   }
   EXPECT_LE(largest_window, limit);
   EXPECT_GT(largest_window, 0.5 * limit);  // the flush ran at the limit
+  // No message over a quarter of the limit, and the block budget split into several.
+  double largest_message = 0;
+  size_t most_blocks = 0;
+  for (const FieldUpdate& u : updates) {
+    double bytes = 0;
+    for (const FieldBlock& b : u.blocks) bytes += b.data.size();
+    largest_message = std::max(largest_message, bytes);
+    most_blocks = std::max(most_blocks, u.blocks.size());
+  }
+  EXPECT_LE(largest_message, 0.25 * limit);
+  EXPECT_EQ(most_blocks, 54u);  // 450 kB of 8 kB blocks
 
   // A replica that applied the deltas in order (ignoring the snapshot) equals the final field.
   Field replica;
@@ -191,7 +205,7 @@ TEST(MapperNode, FollowsKeyframesPublishesUpdatesAndWritesOutputs) {
   for (const FieldUpdate& u : updates) {
     if (u.is_snapshot) continue;
     // Also right after the snapshot: a delta never outgrows the budget.
-    EXPECT_LE(static_cast<int>(u.blocks.size()), nodeParams().max_blocks_per_update);
+    EXPECT_LE(static_cast<int>(u.blocks.size()), params.max_blocks_per_update);
     ASSERT_EQ(applyFieldUpdate(u, &replica, &error), ApplyResult::kApplied) << error;
   }
   EXPECT_TRUE(replica.sameContent(node.mapper().field()));
