@@ -7,6 +7,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "common/alignment.h"
 #include "common/process_stats.h"
 #include "renderer/render_service.h"
 
@@ -51,6 +52,32 @@ std::string plotPoints(const std::map<int64_t, Eigen::Vector3d>& points) {
     out += "[" + num(it->second.x()) + "," + num(it->second.z()) + "]";
   }
   return out + "]";
+}
+
+// Ground truth in the estimate's world: the similarity that best maps its camera centres onto
+// the tracked ones of the same frames (monocular scale and the world frame are arbitrary; the
+// evaluation aligns the same way), or as it is while that is not determined (fewer than 3
+// shared frames, or all at one point).
+std::map<int64_t, Eigen::Vector3d> alignedGroundTruth(
+    const std::map<int64_t, Eigen::Vector3d>& ground_truth,
+    const std::map<int64_t, Eigen::Vector3d>& trajectory) {
+  std::vector<Vec3> src, dst;
+  for (const auto& [frame, p] : ground_truth) {
+    const auto it = trajectory.find(frame);
+    if (it == trajectory.end()) continue;
+    src.push_back(p);
+    dst.push_back(it->second);
+  }
+  if (src.size() < 3) return ground_truth;
+  Sim3 T_est_gt;
+  try {
+    T_est_gt = alignUmeyama(src, dst, true);
+  } catch (const std::invalid_argument&) {
+    return ground_truth;
+  }
+  std::map<int64_t, Eigen::Vector3d> aligned;
+  for (const auto& [frame, p] : ground_truth) aligned[frame] = T_est_gt * p;
+  return aligned;
 }
 
 const char* stateName(ProcessState s) {
@@ -204,7 +231,7 @@ std::string ViewerState::stateJson() const {
       << num(q.z()) << "," << num(q.w()) << "]}";
   }
   o << ",\"trajectory\":" << plotPoints(trajectory_);
-  o << ",\"ground_truth\":" << plotPoints(ground_truth_);
+  o << ",\"ground_truth\":" << plotPoints(alignedGroundTruth(ground_truth_, trajectory_));
   o << ",\"objects\":[";
   for (auto it = objects_.begin(); it != objects_.end(); ++it) {
     if (it != objects_.begin()) o << ",";
