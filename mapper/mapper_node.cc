@@ -266,9 +266,9 @@ void MapperNode::startSnapshot() {
     publishField(&u);
     return;
   }
-  // One chunk per update period next to a smaller delta: a snapshot never outgrows the FIELD
-  // rate (a whole one would be one message of the whole field), and the live view of the
-  // replicas that do not need it keeps moving.
+  // In chunks of one message, 3/4 of each update period's blocks, next to deltas of the rest:
+  // a snapshot never outgrows the FIELD rate (a whole one would be one message of the whole
+  // field), and the live view of the replicas that do not need it keeps moving.
   snapshot_.emplace(mapper_.makeSnapshotSender(++snapshot_seq_, blocksPerMessage()));
 }
 

@@ -71,8 +71,8 @@ class MapperNode {
   bool publishFlushMessage();
   // Flush messages while the FIELD limit allows (to_end: until done, waiting for it).
   void flushField(bool to_end);
-  /// Starts a snapshot (sent a chunk per update period) or, without a field yet, sends the
-  /// empty one.
+  /// Starts a snapshot (sent in chunks by publishUpdate and the final flush) or, without a
+  /// field yet, sends the empty one.
   void startSnapshot();
   int publishSnapshotChunk();  // returns its blocks
   // Blocks per FIELD message: at most max_blocks_per_update, and at most a quarter of a

@@ -225,8 +225,8 @@ class VolumeRenderer {
 
 /// Renders a pinhole view (distortion ignored) ray by ray, in square tiles on `threads`
 /// threads; march_ray(ray, u, v) gives the output of pixel (u, v). Deterministic: pixels are
-/// independent. Throws
-/// std::invalid_argument on a camera without positive size and focal lengths.
+/// independent. Throws std::invalid_argument on a camera without positive size and focal
+/// lengths.
 RenderImages renderPinhole(const SE3& T_world_cam, const CameraModel& camera, int threads,
                            const std::function<RayOutput(const Ray&, int u, int v)>& march_ray);
 
