@@ -23,7 +23,8 @@ const char* kUsage = R"(usage: radslam-play --dataset KIND:PATH [options]
   --url URL          LCM URL (default: LCM's default)
   --prefix P         channel prefix
   --config FILE      YAML with a "player" section (rate, lockstep, start, end, stride, ...)
-  --rate R           x sensor time; 0 = as fast as possible
+  --rate R           x sensor time; 0 = as fast as possible (log: at most
+                     player.log_max_mb_per_s, 20 MB/s by default)
   --lockstep         send frame k+1 only after the tracker acknowledged frame k
   --start N --end N --stride N
   --loops N          play the range N times, every other one backwards (indices and times
@@ -48,7 +49,10 @@ PlayerParams loadParams(const std::string& path, const std::vector<std::string>&
   reader.get("color_compression", &p.color_compression);
   reader.get("depth_wire_scale", &p.depth_wire_scale);
   reader.get("ground_truth", &p.ground_truth);
+  reader.get("log_max_mb_per_s", &p.log_max_mb_per_s);
   reader.finish();
+  if (!(p.log_max_mb_per_s >= 0))
+    throw std::runtime_error(reader.source() + ": player.log_max_mb_per_s must be >= 0");
   std::cerr << "radslam-play: parameters from " << reader.source() << "\n" << reader.dump();
   return p;
 }
@@ -78,6 +82,7 @@ void playLog(Bus& bus, const std::string& path, const std::regex& channels,
   int64_t first_utime = -1;
   const auto wall_start = std::chrono::steady_clock::now();
   int64_t frames = 0;
+  double bytes = 0;  // published so far
   bool lockstep = params.lockstep;
   while (auto event = log.next()) {
     if (stopRequested()) break;
@@ -87,7 +92,11 @@ void playLog(Bus& bus, const std::string& path, const std::regex& channels,
       const auto due = wall_start + std::chrono::microseconds(static_cast<int64_t>(
                                         (event->utime - first_utime) / params.rate));
       std::this_thread::sleep_until(due);
+    } else if (params.log_max_mb_per_s > 0) {
+      std::this_thread::sleep_until(wall_start + std::chrono::microseconds(static_cast<int64_t>(
+                                                     bytes / params.log_max_mb_per_s)));
     }
+    bytes += static_cast<double>(event->data.size());
     // Channels in the log keep the recording run's prefix: replace it by ours.
     std::string base = event->channel;
     for (const char* known :

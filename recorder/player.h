@@ -33,6 +33,10 @@ struct PlayerParams {
   /// negative = the dataset's own depth step (lossless for 16-bit depth PNGs).
   double depth_wire_scale = -1;
   bool ground_truth = true;  // publish GROUND_TRUTH / GROUND_TRUTH_OBJECTS
+  /// log: at rate 0, at most this many MB per second (0 = no limit): a log replayed as fast as
+  /// the disk reads overruns its receivers' socket buffers (a 528 MB fr1/rpy run log lost most
+  /// of its FIELD updates in `radslam view --rate 0`).
+  double log_max_mb_per_s = 20;
 };
 
 /// What the player does with its output; the bus adapter in play_main.cc wires

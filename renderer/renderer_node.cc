@@ -145,7 +145,10 @@ bool RendererNode::waitingForSnapshot() const {
 
 namespace {
 constexpr int kDrainQuietPolls = 4;  // of 50 ms: the bus is quiet after 200 ms without messages
-constexpr size_t kMaxPendingUpdates = 64;  // FIELD updates queued while renders hold the replica
+// FIELD payload queued while renders hold the replica (bytes): a bound in bytes, not messages,
+// so that small messages arriving fast (a log replayed at rate 0) do not stall the bus thread
+// after a few MB while the socket buffer overflows.
+constexpr size_t kMaxPendingBytes = size_t(64) << 20;
 }  // namespace
 
 void applyPreview(const RendererParams& params, MarchParams* mp) {
@@ -169,9 +172,10 @@ RenderResult RendererNode::render(const RenderRequest& request, bool preview) co
 void RendererNode::onField(const FieldUpdate& update) {
   field_received_version_ = update.version;
   pending_updates_.push_back(update);
+  for (const FieldBlock& b : update.blocks) pending_bytes_ += b.data.size();
   // A bounded queue: past it the bus thread waits for the renders (reader-preferring locks
   // could otherwise keep it waiting while the queue grows).
-  applyPendingUpdates(pending_updates_.size() >= kMaxPendingUpdates);
+  applyPendingUpdates(pending_bytes_ >= kMaxPendingBytes);
 }
 
 void RendererNode::applyPendingUpdates(bool wait) {
@@ -183,6 +187,7 @@ void RendererNode::applyPendingUpdates(bool wait) {
     return;
   }
   BusyTimer::Scope busy(reporter_.busy());
+  pending_bytes_ = 0;
   for (; !pending_updates_.empty(); pending_updates_.pop_front()) {
     std::string error;
     if (replica_.apply(pending_updates_.front(), &error) == ApplyResult::kInvalid) {

@@ -104,6 +104,7 @@ class RendererNode {
   mutable std::shared_mutex field_mutex_;  // replica_: written by the bus thread only
   FieldReplica replica_;
   std::deque<FieldUpdate> pending_updates_;  // received, not yet applied (bus thread only)
+  size_t pending_bytes_ = 0;                 // their block payload
   ViewerState viewer_;
   StatusReporter reporter_;
   std::map<int64_t, ViewPose> trajectory_;  // frame index -> tracked pose (bus thread only)
