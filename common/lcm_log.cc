@@ -4,6 +4,7 @@
 
 #include <cstdint>
 #include <cstdio>
+#include <filesystem>
 #include <stdexcept>
 #include <string>
 
@@ -36,6 +37,7 @@ struct LogReader::Impl {
   std::string path;
   FILE* file = nullptr;
   int64_t file_bytes = 0;
+  int64_t event_start = 0, event_end = 0;  // of the last event returned
   bool warned = false;
 
   ~Impl() {
@@ -76,6 +78,7 @@ std::optional<LogEvent> LogReader::next() {
     if (magic == kEventMagic) break;
   }
   if (c == EOF) return std::nullopt;
+  const int64_t start = static_cast<int64_t>(std::ftell(f)) - 4;
   uint8_t header[kEventHeaderBytes - 4];
   if (std::fread(header, 1, sizeof(header), f) != sizeof(header)) return std::nullopt;
   const int64_t offset = static_cast<int64_t>(std::ftell(f));
@@ -105,8 +108,13 @@ std::optional<LogEvent> LogReader::next() {
       std::fread(out.data.data(), 1, out.data.size(), f) != out.data.size()) {
     return std::nullopt;  // the file shrank while being read
   }
+  impl_->event_start = start;
+  impl_->event_end = static_cast<int64_t>(std::ftell(f));
   return out;
 }
+
+int64_t LogReader::lastEventStart() const { return impl_->event_start; }
+int64_t LogReader::lastEventEnd() const { return impl_->event_end; }
 
 void LogReader::seek(int64_t offset) {
   if (std::fseek(impl_->file, static_cast<long>(offset), SEEK_SET) != 0)
@@ -115,15 +123,46 @@ void LogReader::seek(int64_t offset) {
 }
 
 struct LogWriter::Impl {
-  explicit Impl(const std::string& path) : log(path, "w") {}
+  Impl(const std::string& path, const char* mode) : log(path, mode) {}
   lcm::LogFile log;
 };
 
-LogWriter::LogWriter(const std::string& path) : impl_(std::make_unique<Impl>(path)) {
+LogWriter::LogWriter(const std::string& path) : impl_(std::make_unique<Impl>(path, "w")) {
   if (!impl_->log.good()) throw std::runtime_error("cannot create LCM log '" + path + "'");
 }
 
-LogWriter::~LogWriter() { flush(); }
+LogWriter LogWriter::append(const std::string& path) {
+  int64_t events = 0, bytes = 0, end = 0;
+  {
+    LogReader reader(path);
+    while (auto event = reader.next()) {
+      ++events;
+      bytes += static_cast<int64_t>(event->data.size());
+    }
+    end = reader.lastEventEnd();
+  }
+  std::error_code error;
+  std::filesystem::resize_file(path, static_cast<uintmax_t>(end), error);
+  if (error)
+    throw std::runtime_error("cannot cut LCM log '" + path +
+                             "' after its last complete event: " + error.message());
+  LogWriter writer(path, events, bytes);
+  return writer;
+}
+
+LogWriter::LogWriter(const std::string& path, int64_t events, int64_t bytes)
+    : impl_(std::make_unique<Impl>(path, "a")), events_(events), bytes_(bytes) {
+  // Appends go to the end whatever the position; ftell (position()) needs it there too.
+  FILE* f = impl_->log.getFilePtr();
+  if (!impl_->log.good() || !f || std::fseek(f, 0, SEEK_END) != 0)
+    throw std::runtime_error("cannot append to LCM log '" + path + "'");
+}
+
+LogWriter::LogWriter(LogWriter&&) noexcept = default;
+
+LogWriter::~LogWriter() {
+  if (impl_) flush();
+}
 
 void LogWriter::write(int64_t utime, const std::string& channel, const uint8_t* data, size_t size) {
   lcm::LogEvent event;

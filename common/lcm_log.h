@@ -27,6 +27,10 @@ class LogReader {
   std::optional<LogEvent> next();
   /// The next event is read from this byte offset (as LogWriter::position() gave it).
   void seek(int64_t offset);
+  /// Byte offsets where the last event next() returned starts and ends (0 before the first):
+  /// past the end of the last one, a log holds at most the torn tail a killed writer left.
+  int64_t lastEventStart() const;
+  int64_t lastEventEnd() const;
 
  private:
   struct Impl;
@@ -37,6 +41,11 @@ class LogWriter {
  public:
   /// Creates (truncates) the file; throws std::runtime_error when it cannot.
   explicit LogWriter(const std::string& path);
+  /// Continues the log at path: cuts it after its last complete event and appends, the event
+  /// numbers going on from there (a recorder restarted in its run folder). The counts start at
+  /// what the log holds. Throws std::runtime_error when it cannot.
+  static LogWriter append(const std::string& path);
+  LogWriter(LogWriter&&) noexcept;
   ~LogWriter();
   void write(int64_t utime, const std::string& channel, const uint8_t* data, size_t size);
   /// Pushes buffered events to the kernel so a killed process leaves them.
@@ -47,6 +56,7 @@ class LogWriter {
   int64_t bytesWritten() const { return bytes_; }
 
  private:
+  LogWriter(const std::string& path, int64_t events, int64_t bytes);  // appends
   struct Impl;
   std::unique_ptr<Impl> impl_;
   int64_t events_ = 0;

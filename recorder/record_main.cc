@@ -25,6 +25,8 @@ const char* kUsage = R"(usage: radslam-record --out DIR [options]
   --config FILE    YAML with a "recorder" section (alignment, mode, max_dt_s, ...)
   --mode M         mono | rgbd | stereo (chooses the evaluation alignment)
   --progress       print a live progress line on stdout
+  --resume         continue DIR/run.lcmlog (a recorder restarted in its run folder): what it
+                   holds is read back into the exports and new messages are appended to it
 )";
 
 RecorderParams loadParams(const std::string& path, const std::string& mode) {
@@ -68,6 +70,7 @@ int run(int argc, char** argv) {
   const std::string url = cli.get("url", "");
   const std::string prefix = cli.get("prefix", "");
   const bool progress = cli.getBool("progress", false);
+  const bool resume = cli.getBool("resume", false);
   cli.finish();
   RecorderParams params = loadParams(config, mode);
   params.keyframe_exr_dir = out_dir + "/keyframes";
@@ -75,7 +78,8 @@ int run(int argc, char** argv) {
   installStopSignals();
   std::filesystem::create_directories(out_dir);
   const std::string log_path = out_dir + "/run.lcmlog";
-  LogWriter log(log_path);
+  const bool resuming = resume && std::filesystem::exists(log_path);
+  LogWriter log = resuming ? LogWriter::append(log_path) : LogWriter(log_path);
   Bus bus(url, prefix, "recorder");
   RunRecorder recorder(params);
   StatusReporter reporter("recorder");
@@ -85,6 +89,48 @@ int run(int argc, char** argv) {
   auto is = [&](const std::string& channel, const char* base) {
     return channel == bus.fullChannel(base);
   };
+  // A message into the exports; offset: of its event in the log (-1: not written).
+  auto exportMessage = [&](const std::string& ch, int64_t recv_utime, const uint8_t* data,
+                           size_t size, int64_t offset) {
+    recorder.onMessage(ch, recv_utime, size);
+    if (is(ch, channel::kCamera)) {
+      recorder.onCameraFrame(recv_utime);
+    } else if (is(ch, channel::kPose)) {
+      PoseStamped pose;
+      if (decodeOrWarn(ch, data, size, &pose)) recorder.onPose(pose);
+    } else if (is(ch, channel::kGroundTruth)) {
+      PoseStamped pose;
+      if (decodeOrWarn(ch, data, size, &pose)) recorder.onGroundTruth(pose);
+    } else if (is(ch, channel::kKeyframe)) {
+      Keyframe keyframe;
+      if (decodeOrWarn(ch, data, size, &keyframe)) {
+        if (offset >= 0) archive.add(keyframe.keyframe_id, keyframe.version, offset);
+        recorder.onKeyframe(keyframe);
+      }
+    } else if (is(ch, channel::kObjects)) {
+      ObjectList objects;
+      if (decodeOrWarn(ch, data, size, &objects)) recorder.onObjects(objects);
+    } else if (is(ch, channel::kGroundTruthObjects)) {
+      ObjectList objects;
+      if (decodeOrWarn(ch, data, size, &objects)) recorder.onGroundTruthObjects(objects);
+    } else if (is(ch, channel::kStatus)) {
+      Status status;
+      if (decodeOrWarn(ch, data, size, &status)) recorder.onStatus(status);
+    }
+  };
+  if (resuming) {
+    // What the log holds, as if heard now (its own receive times); its CONTROL requests were
+    // served before the restart.
+    LogReader reader(log_path);
+    int64_t events = 0;
+    while (std::optional<LogEvent> event = reader.next()) {
+      exportMessage(event->channel, event->utime, event->data.data(), event->data.size(),
+                    reader.lastEventStart());
+      ++events;
+    }
+    std::cerr << "radslam-record: resuming " << log_path << ": " << events
+              << " events read back, appending after byte " << log.position() << "\n";
+  }
   bus.subscribeRaw(
       ".*", [&](const std::string& ch, int64_t recv_utime, const uint8_t* data, size_t size) {
         BusyTimer::Scope busy(reporter.busy());
@@ -96,32 +142,9 @@ int run(int argc, char** argv) {
           // One write(2) per event; the receive path already costs more syscalls than that.
           log.flush();
         }
-        recorder.onMessage(ch, recv_utime, size);
         reporter.itemHandled();
-        if (is(ch, channel::kCamera)) {
-          recorder.onCameraFrame(recv_utime);
-        } else if (is(ch, channel::kPose)) {
-          PoseStamped pose;
-          if (decodeOrWarn(ch, data, size, &pose)) recorder.onPose(pose);
-        } else if (is(ch, channel::kGroundTruth)) {
-          PoseStamped pose;
-          if (decodeOrWarn(ch, data, size, &pose)) recorder.onGroundTruth(pose);
-        } else if (is(ch, channel::kKeyframe)) {
-          Keyframe keyframe;
-          if (decodeOrWarn(ch, data, size, &keyframe)) {
-            if (offset >= 0) archive.add(keyframe.keyframe_id, keyframe.version, offset);
-            recorder.onKeyframe(keyframe);
-          }
-        } else if (is(ch, channel::kObjects)) {
-          ObjectList objects;
-          if (decodeOrWarn(ch, data, size, &objects)) recorder.onObjects(objects);
-        } else if (is(ch, channel::kGroundTruthObjects)) {
-          ObjectList objects;
-          if (decodeOrWarn(ch, data, size, &objects)) recorder.onGroundTruthObjects(objects);
-        } else if (is(ch, channel::kStatus)) {
-          Status status;
-          if (decodeOrWarn(ch, data, size, &status)) recorder.onStatus(status);
-        } else if (is(ch, channel::kControl)) {
+        exportMessage(ch, recv_utime, data, size, offset);
+        if (is(ch, channel::kControl)) {
           Control control;
           if (!decodeOrWarn(ch, data, size, &control)) return;
           if (control.command == ControlCommand::kStop && control.target == "recorder")

@@ -5,10 +5,12 @@
 #      (RADSLAM_DROP, evenly spread: the 10th, 30th, ...). The mapper must ask the tracker for
 #      the lost keyframes and end with all of them; the renderer must follow the field through
 #      the gaps (same final version as the mapper's).
-#   2. a killed mapper and renderer: the mapper gets SIGKILL once its first checkpoint exists,
-#      the renderer once the mapper has resumed; the launcher (--restart mapper,renderer)
-#      restarts both. The mapper resumes from the checkpoint, asks for the keyframes it lacks
-#      and ends with all of them; the renderer re-syncs by snapshot.
+#   2. a killed mapper, renderer and recorder: the mapper gets SIGKILL once its first
+#      checkpoint exists, the renderer once the mapper has resumed, the recorder once the
+#      renderer was restarted; the launcher (--restart mapper,renderer,recorder) restarts all
+#      three. The mapper resumes from the checkpoint, asks for the keyframes it lacks and ends
+#      with all of them; the renderer re-syncs by snapshot; the recorder continues its log
+#      (--resume) and its exports hold what it heard before the kill.
 # The tracker is deterministic in lock-step: its trajectory must equal the undisturbed one.
 # Exit codes: 0 pass, 1 fail, 77 skip (no multicast route on this host).
 #
@@ -60,8 +62,8 @@ run clean
 echo "run 'drops': 5% of KEYFRAME and FIELD lost"
 RADSLAM_DROP="KEYFRAME=0.05,FIELD=0.05" run drops
 
-echo "run 'kill': mapper and renderer killed, restarted by the launcher"
-"$launcher" run "${args[@]}" --out "$work/kill" --rate 0.5 --restart mapper,renderer \
+echo "run 'kill': mapper, renderer and recorder killed, restarted by the launcher"
+"$launcher" run "${args[@]}" --out "$work/kill" --rate 0.5 --restart mapper,renderer,recorder \
     --checkpoint-s 2 >"$work/kill.out" 2>&1 &
 launcher_pid=$!
 killed=0
@@ -71,11 +73,15 @@ for _ in $(seq 1 600); do
     pkill -KILL -f "radslam-mapper .*--out $work/kill" && killed=1 && echo "  mapper killed"
   elif [ $killed -eq 1 ] && grep -q 'resumed from' "$work/kill/logs/mapper.log" 2>/dev/null; then
     pkill -KILL -f "radslam-renderer .*--out $work/kill" && killed=2 && echo "  renderer killed"
+  elif [ $killed -eq 2 ] && grep -q 'restarted by the launcher' "$work/kill/logs/renderer.log"; then
+    pkill -KILL -f "radslam-record .*--out $work/kill" && killed=3 && echo "  recorder killed"
   fi
   sleep 0.2
 done
 wait "$launcher_pid" || { tail -n 30 "$work/kill.out"; fail "run 'kill' failed"; }
-[ $killed -eq 2 ] || fail "run 'kill' ended before both kills (stage $killed)"
+[ $killed -eq 3 ] || fail "run 'kill' ended before all three kills (stage $killed)"
+grep 'radslam-record: resuming' "$work/kill/logs/recorder.log" \
+    || fail "run 'kill': the restarted recorder did not resume its log"
 
 echo
 status=0
@@ -114,7 +120,7 @@ check "grep -q 'asking the tracker again for keyframes' '$work/drops/logs/mapper
     "the mapper asked again for lost keyframes: $(grep -o 'keyframes [0-9,]*$' "$work/drops/logs/mapper.log" | tr '\n' ' ')"
 check "grep -q 'resumed from' '$work/kill/logs/mapper.log'" \
     "the restarted mapper $(grep -o 'resumed from.*' "$work/kill/logs/mapper.log" | head -n 1)"
-check "[ \$(grep -c 'restarting it' '$work/kill.out') -ge 2 ]" \
-    "the launcher restarted both: $(grep -o '[a-z]* (pid [0-9]*) exited (code [0-9]*)' "$work/kill.out" | tr '\n' ' ')"
+check "[ \$(grep -c 'restarting it' '$work/kill.out') -ge 3 ]" \
+    "the launcher restarted all three: $(grep -o '[a-z]* (pid [0-9]*) exited (code [0-9]*)' "$work/kill.out" | tr '\n' ' ')"
 [ $status -eq 0 ] || fail "see above"
 echo "PASS"

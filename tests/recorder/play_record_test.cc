@@ -136,6 +136,55 @@ TEST_F(PlayRecordTest, PlayReplayRecordAreByteExact) {
   EXPECT_EQ(frame.frame_index, 0);
 }
 
+TEST_F(PlayRecordTest, ARestartedRecorderContinuesItsLogAndExports) {
+  const std::string played = root_ + "/played_for_resume.lcmlog";
+  ASSERT_EQ(runCommand(kBin + "radslam-play --dataset synthetic:" + root_ +
+                       "/data --rate 0 --url 'file://" + played + "?mode=w'")
+                .exit_code,
+            0);
+  // The bus as two halves: what the first recorder heard before it was killed, and the rest.
+  const std::vector<LogEvent> all = readLog(played);
+  const std::string first = root_ + "/first_half.lcmlog", second = root_ + "/second_half.lcmlog";
+  {
+    LogWriter a(first), b(second);
+    for (size_t i = 0; i < all.size(); ++i)
+      (i < all.size() / 2 ? a : b)
+          .write(all[i].utime, all[i].channel, all[i].data.data(), all[i].data.size());
+  }
+  const std::string run = root_ + "/resumed_run";
+  CommandResult before =
+      runCommand(kBin + "radslam-record --url 'file://" + first + "?speed=0' --out " + run);
+  ASSERT_EQ(before.exit_code, 0) << before.output;
+  // Killed while writing an event: a torn tail (magic and part of a header).
+  const size_t complete = fs::file_size(run + "/run.lcmlog");
+  {
+    std::ofstream torn(run + "/run.lcmlog", std::ios::binary | std::ios::app);
+    torn.write("\xED\xA1\xDA\x01\x00\x00\x00", 7);
+  }
+  CommandResult after = runCommand(kBin + "radslam-record --url 'file://" + second +
+                                   "?speed=0' --out " + run + " --resume");
+  ASSERT_EQ(after.exit_code, 0) << after.output;
+  EXPECT_NE(after.output.find("resuming"), std::string::npos) << after.output;
+  EXPECT_NE(after.output.find("frames played          10"), std::string::npos) << after.output;
+  EXPECT_EQ(readTumTrajectory(run + "/groundtruth.txt").size(), 10u);
+  // Everything heard before and after, in order, the torn tail cut.
+  const std::vector<LogEvent> recorded = withoutStatus(readLog(run + "/run.lcmlog"));
+  const std::vector<LogEvent> expected = withoutStatus(all);
+  ASSERT_EQ(recorded.size(), expected.size());
+  for (size_t i = 0; i < recorded.size(); ++i) {
+    EXPECT_EQ(recorded[i].channel, expected[i].channel) << i;
+    EXPECT_EQ(recorded[i].data, expected[i].data) << i;
+  }
+  EXPECT_GT(fs::file_size(run + "/run.lcmlog"), complete);
+  // And LCM's own player reads the continued log to its end.
+  const std::string relayed = root_ + "/resumed_relayed.lcmlog";
+  ASSERT_EQ(
+      runCommand("lcm-logplayer -s 1000 -l 'file://" + relayed + "?mode=w' " + run + "/run.lcmlog")
+          .exit_code,
+      0);
+  EXPECT_EQ(countChannel(readLog(relayed), "CAMERA"), 10u);
+}
+
 TEST_F(PlayRecordTest, BadInputGivesClearErrors) {
   CommandResult missing = runCommand(kBin + "radslam-play --dataset tum:/no/such/folder --rate 0" +
                                      " --url 'file://" + root_ + "/x.lcmlog?mode=w'");
