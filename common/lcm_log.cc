@@ -131,13 +131,16 @@ LogWriter::LogWriter(const std::string& path) : impl_(std::make_unique<Impl>(pat
   if (!impl_->log.good()) throw std::runtime_error("cannot create LCM log '" + path + "'");
 }
 
-LogWriter LogWriter::append(const std::string& path) {
+LogWriter LogWriter::append(
+    const std::string& path,
+    const std::function<void(const LogEvent& event, int64_t offset)>& read_back) {
   int64_t events = 0, bytes = 0, end = 0;
   {
     LogReader reader(path);
     while (auto event = reader.next()) {
       ++events;
       bytes += static_cast<int64_t>(event->data.size());
+      if (read_back) read_back(*event, reader.lastEventStart());
     }
     end = reader.lastEventEnd();
   }
@@ -146,8 +149,7 @@ LogWriter LogWriter::append(const std::string& path) {
   if (error)
     throw std::runtime_error("cannot cut LCM log '" + path +
                              "' after its last complete event: " + error.message());
-  LogWriter writer(path, events, bytes);
-  return writer;
+  return LogWriter(path, events, bytes);
 }
 
 LogWriter::LogWriter(const std::string& path, int64_t events, int64_t bytes)

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -43,8 +44,12 @@ class LogWriter {
   explicit LogWriter(const std::string& path);
   /// Continues the log at path: cuts it after its last complete event and appends, the event
   /// numbers going on from there (a recorder restarted in its run folder). The counts start at
-  /// what the log holds. Throws std::runtime_error when it cannot.
-  static LogWriter append(const std::string& path);
+  /// what the log holds; read_back (when given) gets each event it holds and the byte offset
+  /// where it starts, from the one pass that counts them. Throws std::runtime_error when it
+  /// cannot.
+  static LogWriter append(
+      const std::string& path,
+      const std::function<void(const LogEvent& event, int64_t offset)>& read_back = {});
   LogWriter(LogWriter&&) noexcept;
   ~LogWriter();
   void write(int64_t utime, const std::string& channel, const uint8_t* data, size_t size);

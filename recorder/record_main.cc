@@ -78,13 +78,9 @@ int run(int argc, char** argv) {
   installStopSignals();
   std::filesystem::create_directories(out_dir);
   const std::string log_path = out_dir + "/run.lcmlog";
-  const bool resuming = resume && std::filesystem::exists(log_path);
-  LogWriter log = resuming ? LogWriter::append(log_path) : LogWriter(log_path);
   Bus bus(url, prefix, "recorder");
   RunRecorder recorder(params);
   StatusReporter reporter("recorder");
-
-  LogGuard log_guard(params, log_path);
   KeyframeArchive archive(log_path);
   auto is = [&](const std::string& channel, const char* base) {
     return channel == bus.fullChannel(base);
@@ -118,19 +114,20 @@ int run(int argc, char** argv) {
       if (decodeOrWarn(ch, data, size, &status)) recorder.onStatus(status);
     }
   };
-  if (resuming) {
-    // What the log holds, as if heard now (its own receive times); its CONTROL requests were
-    // served before the restart.
-    LogReader reader(log_path);
-    int64_t events = 0;
-    while (std::optional<LogEvent> event = reader.next()) {
-      exportMessage(event->channel, event->utime, event->data.data(), event->data.size(),
-                    reader.lastEventStart());
-      ++events;
-    }
-    std::cerr << "radslam-record: resuming " << log_path << ": " << events
+  // Resuming, what the log holds goes into the exports as if heard now (at its own receive
+  // times); its CONTROL requests were served before the restart.
+  const bool resuming = resume && std::filesystem::exists(log_path);
+  LogWriter log =
+      resuming ? LogWriter::append(log_path,
+                                   [&](const LogEvent& event, int64_t offset) {
+                                     exportMessage(event.channel, event.utime, event.data.data(),
+                                                   event.data.size(), offset);
+                                   })
+               : LogWriter(log_path);
+  if (resuming)
+    std::cerr << "radslam-record: resuming " << log_path << ": " << log.eventsWritten()
               << " events read back, appending after byte " << log.position() << "\n";
-  }
+  LogGuard log_guard(params, log_path);
   bus.subscribeRaw(
       ".*", [&](const std::string& ch, int64_t recv_utime, const uint8_t* data, size_t size) {
         BusyTimer::Scope busy(reporter.busy());
