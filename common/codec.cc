@@ -584,7 +584,7 @@ bool fromLcm(const control_t& in, Control* out, std::string* error) {
     return false;
   }
   headerFromLcm(in.header, &c.header);
-  if (in.command < control_t::STOP || in.command > control_t::REPUBLISH) {
+  if (in.command < control_t::STOP || in.command > control_t::REWIND) {
     return fail(error, "unknown control command " + std::to_string(in.command));
   }
   c.command = static_cast<ControlCommand>(in.command);

@@ -1,5 +1,6 @@
 #include "common/control.h"
 
+#include <cerrno>
 #include <cstdlib>
 #include <sstream>
 
@@ -18,6 +19,23 @@ bool parseKeyframeRequest(const std::string& argument, std::vector<int32_t>* ids
       ids->push_back(static_cast<int32_t>(v));
   }
   return !ids->empty();
+}
+
+bool parseRewindRequest(const std::string& argument, int64_t* frame_index, std::string* token) {
+  const size_t colon = argument.find(':');
+  if (colon == 0 || colon == std::string::npos) return false;
+  const std::string number = argument.substr(0, colon);
+  char* end = nullptr;
+  errno = 0;
+  const long long v = std::strtoll(number.c_str(), &end, 10);
+  if (errno != 0 || !end || *end || v < 0) return false;
+  *frame_index = v;
+  *token = argument.substr(colon + 1);
+  return true;
+}
+
+std::string rewindRequest(int64_t frame_index, const std::string& token) {
+  return std::to_string(frame_index) + ":" + token;
 }
 
 }  // namespace radslam

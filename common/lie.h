@@ -35,6 +35,8 @@ class SO3 {
   explicit SO3(const Eigen::Quaterniond& q);
   /// Projects R onto SO(3) (nearest rotation).
   explicit SO3(const Mat3& R);
+  /// A quaternion already of unit norm, kept bit for bit (files that store poses exactly).
+  static SO3 fromUnitQuaternion(const Eigen::Quaterniond& q) { return SO3(q, true); }
 
   static SO3 exp(const Vec3& w);
   Vec3 log() const;

@@ -203,7 +203,8 @@ enum class ControlCommand : int8_t {
   kSave = 1,
   kReset = 2,
   kSnapshot = 3,
-  kRepublish = 4
+  kRepublish = 4,
+  kRewind = 5
 };
 
 /// Channel CONTROL.

@@ -153,6 +153,8 @@ void MapperNode::onControl(const Control& control) {
       unpublished_poses_.clear();
       snapshot_requested_ = true;  // replicas start over from the empty field
       break;
+    case ControlCommand::kRewind:  // the player's
+      break;
   }
 }
 

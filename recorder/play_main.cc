@@ -6,9 +6,11 @@
 #include <regex>
 #include <set>
 #include <thread>
+#include <utility>
 
 #include "common/bus.h"
 #include "common/cli.h"
+#include "common/control.h"
 #include "common/dataset.h"
 #include "common/lcm_log.h"
 #include "common/params.h"
@@ -158,15 +160,30 @@ int run(int argc, char** argv) {
     if (status.process == params.ack_process && status.last_frame_index > acked)
       acked = status.last_frame_index;
   });
+  // CONTROL REWIND from the acknowledging process (a tracker resumed from a checkpoint): play
+  // again from its frame; it is repeated until served, so each token is served once.
+  int64_t rewind = -1;
+  std::set<std::string> rewind_tokens;
   bus.subscribe<Control>(channel::kControl, [&](const Control& control) {
-    if (control.command == ControlCommand::kStop &&
-        (control.target.empty() || control.target == "player"))
-      requestStop();
+    if (!control.target.empty() && control.target != "player") return;
+    if (control.command == ControlCommand::kStop) requestStop();
+    if (control.command != ControlCommand::kRewind || control.target.empty()) return;
+    int64_t frame_index = -1;
+    std::string token;
+    if (!parseRewindRequest(control.argument, &frame_index, &token)) {
+      std::cerr << "radslam-play: warning: CONTROL REWIND '" << control.argument
+                << "' ignored (FRAME:TOKEN expected)\n";
+      return;
+    }
+    if (!params.lockstep || !rewind_tokens.insert(token).second) return;
+    rewind = frame_index;
+    acked = frame_index - 1;
   });
+  auto take_rewind = [&] { return std::exchange(rewind, int64_t{-1}); };
   auto wait_ack = [&](int64_t frame_index, double timeout_s) {
     const auto deadline =
         std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
-    while (acked < frame_index && !stopRequested()) {
+    while (acked < frame_index && rewind < 0 && !stopRequested()) {
       if (std::chrono::steady_clock::now() > deadline) return false;
       bus.handle(20);
     }
@@ -227,6 +244,7 @@ int run(int argc, char** argv) {
     bus.publish(channel::kGroundTruthObjects, objects);
   };
   sinks.wait_for_ack = wait_ack;
+  sinks.take_rewind = take_rewind;
   sinks.should_stop = [] { return stopRequested(); };
   auto last_status = std::chrono::steady_clock::now();
   sinks.progress = [&](int64_t sent, int64_t planned) {

@@ -95,62 +95,74 @@ PlayerStats Player::play(const DatasetReader& dataset) {
                    : 0.0;
   const double loop_s = dataset.timestamp(static_cast<size_t>(last)) - first_t + interval;
   const double last_t = dataset.timestamp(static_cast<size_t>(last));
-  for (int loop = 0; loop < params_.loops; ++loop) {
-    // Odd loops play the range backwards: the camera turns round instead of jumping back to
-    // the start, which no tracker follows without relocalising.
+  // Frame k of the planned ones: loop k / per_loop, step k % per_loop within it. Odd loops play
+  // the range backwards: the camera turns round instead of jumping back to the start, which no
+  // tracker follows without relocalising.
+  for (int64_t k = 0; k < planned; ++k) {
+    if (sinks_.should_stop && sinks_.should_stop()) break;
+    const int64_t loop = k / per_loop, step = k % per_loop;
     const bool backwards = loop % 2 == 1;
-    for (int64_t step = 0; step < per_loop; ++step) {
-      if (sinks_.should_stop && sinks_.should_stop()) break;
-      const int64_t i = params_.start + (backwards ? per_loop - 1 - step : step) * params_.stride;
-      // Increasing; the dataset's own index in the first loop.
-      const int64_t index = params_.start + step * params_.stride + loop * (end - params_.start);
-      const double t = dataset.timestamp(static_cast<size_t>(i));
-      // Sensor time on the wire: the loop's start plus the time into the loop.
-      const double shift_s = loop * loop_s + (backwards ? last_t - t - (t - first_t) : 0.0);
-      std::string error;
-      std::optional<Frame> frame = dataset.frame(static_cast<size_t>(i), &error);
-      waitUntil(t + shift_s, first_t, wall_start);
-      if (!frame) {
-        std::cerr << "radslam-play: warning: skipping frame " << i << ": " << error << "\n";
-        ++stats.frames_skipped;
-        continue;
-      }
-      frame->frame_index = index;
-      frame->header.utime += static_cast<int64_t>(std::llround(shift_s * 1e6));
-      applyWireHints(&*frame);
-      sinks_.frame(*frame);
-      ++stats.frames_sent;
+    const int64_t i = params_.start + (backwards ? per_loop - 1 - step : step) * params_.stride;
+    // Increasing; the dataset's own index in the first loop.
+    const int64_t index = params_.start + step * params_.stride + loop * (end - params_.start);
+    const double t = dataset.timestamp(static_cast<size_t>(i));
+    // Sensor time on the wire: the loop's start plus the time into the loop.
+    const double shift_s = loop * loop_s + (backwards ? last_t - t - (t - first_t) : 0.0);
+    std::string error;
+    std::optional<Frame> frame = dataset.frame(static_cast<size_t>(i), &error);
+    waitUntil(t + shift_s, first_t, wall_start);
+    if (!frame) {
+      std::cerr << "radslam-play: warning: skipping frame " << i << ": " << error << "\n";
+      ++stats.frames_skipped;
+      continue;
+    }
+    frame->frame_index = index;
+    frame->header.utime += static_cast<int64_t>(std::llround(shift_s * 1e6));
+    applyWireHints(&*frame);
+    sinks_.frame(*frame);
+    ++stats.frames_sent;
 
-      if (params_.ground_truth && sinks_.ground_truth && !ground_truth.empty()) {
-        const StampedPose* sample = nearestSample(ground_truth, t);
-        if (std::abs(sample->t - t) <= kMaxGroundTruthGapS) {
-          PoseStamped gt;
-          const double dt = backwards ? t - sample->t : sample->t - t;  // from the frame, s
-          gt.header.utime = static_cast<int64_t>(std::llround((t + shift_s + dt) * 1e6));
-          gt.frame_index = index;
-          gt.state = TrackingState::kGroundTruth;
-          gt.T_world_cam = sample->T_world_cam;
-          sinks_.ground_truth(gt);
-        }
+    if (params_.ground_truth && sinks_.ground_truth && !ground_truth.empty()) {
+      const StampedPose* sample = nearestSample(ground_truth, t);
+      if (std::abs(sample->t - t) <= kMaxGroundTruthGapS) {
+        PoseStamped gt;
+        const double dt = backwards ? t - sample->t : sample->t - t;  // from the frame, s
+        gt.header.utime = static_cast<int64_t>(std::llround((t + shift_s + dt) * 1e6));
+        gt.frame_index = index;
+        gt.state = TrackingState::kGroundTruth;
+        gt.T_world_cam = sample->T_world_cam;
+        sinks_.ground_truth(gt);
       }
-      if (!object_truth.empty() && sinks_.ground_truth_objects) {
-        ObjectList objects;
-        objects.header.utime = frame->header.utime;
-        objects.frame_index = index;
-        auto k = std::lower_bound(
-            object_truth.begin(), object_truth.end(), t - 1e-6,
-            [](const ObjectPoseSample& sample, double time) { return sample.t < time; });
-        for (; k != object_truth.end() && std::abs(k->t - t) <= 1e-6; ++k) {
-          TrackedObject object;
-          object.object_id = k->object_id;
-          object.class_id = k->class_id;
-          object.T_world_object = k->T_world_object;
-          objects.objects.push_back(object);
-        }
-        if (!objects.objects.empty()) sinks_.ground_truth_objects(objects);
+    }
+    if (!object_truth.empty() && sinks_.ground_truth_objects) {
+      ObjectList objects;
+      objects.header.utime = frame->header.utime;
+      objects.frame_index = index;
+      auto sample =
+          std::lower_bound(object_truth.begin(), object_truth.end(), t - 1e-6,
+                           [](const ObjectPoseSample& s, double time) { return s.t < time; });
+      for (; sample != object_truth.end() && std::abs(sample->t - t) <= 1e-6; ++sample) {
+        TrackedObject object;
+        object.object_id = sample->object_id;
+        object.class_id = sample->class_id;
+        object.T_world_object = sample->T_world_object;
+        objects.objects.push_back(object);
       }
-      if (sinks_.progress) sinks_.progress(stats.frames_sent, planned);
-      acknowledge(index, &stats);
+      if (!objects.objects.empty()) sinks_.ground_truth_objects(objects);
+    }
+    if (sinks_.progress) sinks_.progress(stats.frames_sent, planned);
+    acknowledge(index, &stats);
+    const int64_t rewind = params_.lockstep && sinks_.take_rewind ? sinks_.take_rewind() : -1;
+    if (rewind >= 0 && rewind <= index) {
+      // The first planned frame at or after `rewind` (indices increase with k).
+      const int64_t span = end - params_.start;
+      const int64_t from = std::max<int64_t>(rewind - params_.start, 0);
+      const int64_t first =
+          (from / span) * per_loop + (from % span + params_.stride - 1) / params_.stride;
+      std::cerr << "radslam-play: playing again from frame " << rewind << " (asked by '"
+                << params_.ack_process << "')\n";
+      ++stats.rewinds;
+      k = std::min(first, k) - 1;
     }
   }
   stats.wall_s = wallSeconds() - wall_start;

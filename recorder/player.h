@@ -48,6 +48,10 @@ struct PlayerSinks {
   /// Blocks until frame_index is acknowledged or timeout_s passes; returns
   /// whether it was acknowledged. Needed only in lock-step mode.
   std::function<bool(int64_t frame_index, double timeout_s)> wait_for_ack;
+  /// Lock-step, after each acknowledgement: a frame index to play again from (the
+  /// acknowledging process resumed from a checkpoint older than the frames sent), or -1. Its
+  /// acknowledgements count from there on. Optional.
+  std::function<int64_t()> take_rewind;
   /// Polled between frames; true ends playback early (Ctrl-C, CONTROL STOP).
   std::function<bool()> should_stop;
   /// Called after each frame with (frames sent, frames planned).
@@ -58,6 +62,7 @@ struct PlayerStats {
   int64_t frames_sent = 0;
   int64_t frames_skipped = 0;  // unreadable frames (warned)
   int64_t acks_missed = 0;
+  int64_t rewinds = 0;  // plays again from an earlier frame (take_rewind)
   double wall_s = 0;
 };
 

@@ -39,7 +39,7 @@ cv::Mat absoluteMap(const cv::Mat& flow) {
 }  // namespace
 
 DenseFlow::DenseFlow(const FlowOptions& options) : options_(options) {
-  dis_ = cv::DISOpticalFlow::create(presetOf(options.preset));
+  presetOf(options.preset);  // throws on an unknown preset
   if (options.finest_scale < 0 || options.finest_scale > 6) {
     throw std::invalid_argument("flow finest_scale must be in [0, 6], got " +
                                 std::to_string(options.finest_scale));
@@ -50,11 +50,16 @@ DenseFlow::DenseFlow(const FlowOptions& options) : options_(options) {
         "flow options: need variational_iterations >= 0, patch_size >= 4, 1 <= patch_stride <= "
         "patch_size");
   }
-  dis_->setFinestScale(options.finest_scale);
-  dis_->setVariationalRefinementIterations(options.variational_iterations);
-  dis_->setPatchSize(options.patch_size);
-  dis_->setPatchStride(options.patch_stride);
-  dis_->setUseSpatialPropagation(options.spatial_propagation);
+}
+
+cv::Ptr<cv::DISOpticalFlow> DenseFlow::makeDis() const {
+  cv::Ptr<cv::DISOpticalFlow> dis = cv::DISOpticalFlow::create(presetOf(options_.preset));
+  dis->setFinestScale(options_.finest_scale);
+  dis->setVariationalRefinementIterations(options_.variational_iterations);
+  dis->setPatchSize(options_.patch_size);
+  dis->setPatchStride(options_.patch_stride);
+  dis->setUseSpatialPropagation(options_.spatial_propagation);
+  return dis;
 }
 
 cv::Mat DenseFlow::compute(const cv::Mat& grey_a, const cv::Mat& grey_b, const cv::Mat& init,
@@ -62,15 +67,16 @@ cv::Mat DenseFlow::compute(const cv::Mat& grey_a, const cv::Mat& grey_b, const c
   CV_Assert(grey_a.type() == CV_8UC1 && grey_b.type() == CV_8UC1 && grey_a.size() == grey_b.size());
   const cv::Mat a = grey_a.isContinuous() ? grey_a : grey_a.clone();
   const cv::Mat b = grey_b.isContinuous() ? grey_b : grey_b.clone();
+  const cv::Ptr<cv::DISOpticalFlow> dis = makeDis();
   if (init.empty()) {
     cv::Mat flow;
-    dis_->calc(a, b, flow);
+    dis->calc(a, b, flow);
     return flow;
   }
   CV_Assert(init.type() == CV_32FC2 && init.size() == grey_a.size());
   if (warm_start == WarmStart::kCoarse) {
     cv::Mat flow = init.clone();
-    dis_->calc(a, b, flow);
+    dis->calc(a, b, flow);
     return flow;
   }
   // b warped by the (smoothed) prediction, the residual flow from zero, composed with the
@@ -83,7 +89,7 @@ cv::Mat DenseFlow::compute(const cv::Mat& grey_a, const cv::Mat& grey_b, const c
   cv::remap(b, warped, absoluteMap(smooth_init), cv::noArray(), cv::INTER_LINEAR,
             cv::BORDER_REPLICATE);
   cv::Mat residual;
-  dis_->calc(a, warped, residual);
+  dis->calc(a, warped, residual);
   cv::Mat init_at_target;
   cv::remap(smooth_init, init_at_target, absoluteMap(residual), cv::noArray(), cv::INTER_LINEAR,
             cv::BORDER_REPLICATE);

@@ -80,7 +80,10 @@ enum class WarmStart {
   kWarp,
 };
 
-/// Flow from one image to another with DIS (one instance reused: its buffers are kept).
+/// Flow from one image to another with DIS. Each flow gets a DIS instance of its own: one
+/// instance reused carries state from one call to the next (OpenCV 4.6; the same image pair
+/// gave a different flow after other pairs), and a flow must depend on its inputs alone so
+/// that a tracker resumed from a checkpoint continues exactly.
 class DenseFlow {
  public:
   /// Throws std::invalid_argument on an unknown preset or out-of-range option.
@@ -93,8 +96,9 @@ class DenseFlow {
                   WarmStart warm_start = WarmStart::kCoarse);
 
  private:
+  cv::Ptr<cv::DISOpticalFlow> makeDis() const;
+
   FlowOptions options_;
-  cv::Ptr<cv::DISOpticalFlow> dis_;
 };
 
 /// Working-resolution flow predicted by grid targets (CV_32FC2 grid, location in b's grid;

@@ -330,4 +330,91 @@ int KeyframeGraph::markSent(int id) {
   return kf.version;
 }
 
+void KeyframeGraph::save(BinaryWriter* out) const {
+  BinaryWriter& w = *out;
+  w.put<uint32_t>(keyframes_.size());
+  for (const KeyframeData& k : keyframes_) {
+    w.put<int32_t>(k.id);
+    w.put<int64_t>(k.frame_index);
+    w.header(k.header);
+    for (const cv::Mat* m :
+         {&k.color, &k.grey, &k.structure, &k.gradients, &k.right_grey, &k.stereo_target,
+          &k.stereo_weight, &k.moving, &k.depth, &k.ba.inv_depth, &k.ba.prior_inv_depth,
+          &k.ba.prior_inv_depth_var, &k.sensor_inv_depth, &k.sensor_inv_depth_var, &k.inv_depth_var,
+          &k.sent_inv_depth})
+      w.mat(*m);
+    w.se3(k.ba.T_world_cam);
+    w.put<uint8_t>(k.ba.fixed_pose);
+    w.matrix(k.covariance);
+    w.put<uint8_t>(k.in_window);
+    w.put<int32_t>(k.version);
+    w.put<int32_t>(k.sent_at);
+    w.se3(k.sent_pose);
+  }
+  w.vec(kept_images_);
+  w.vec(window_);
+  w.put<uint32_t>(edges_.size());
+  for (const GraphEdge& e : edges_) {
+    w.put<int32_t>(e.i);
+    w.put<int32_t>(e.j);
+    w.put<int32_t>(e.anchor);
+    w.mat(e.target);
+    w.mat(e.weight);
+    w.put<uint8_t>(e.T_i_other.has_value());
+    if (e.T_i_other) w.se3(*e.T_i_other);
+  }
+}
+
+void KeyframeGraph::load(BinaryReader* in) {
+  BinaryReader& r = *in;
+  std::vector<KeyframeData> keyframes(r.count(64));
+  for (size_t id = 0; id < keyframes.size(); ++id) {
+    KeyframeData& k = keyframes[id];
+    k.id = r.get<int32_t>();
+    if (k.id != static_cast<int>(id)) r.fail("keyframe ids out of order");
+    k.frame_index = r.get<int64_t>();
+    k.header = r.header();
+    for (cv::Mat* m : {&k.color, &k.grey, &k.structure, &k.gradients, &k.right_grey,
+                       &k.stereo_target, &k.stereo_weight, &k.moving, &k.depth, &k.ba.inv_depth,
+                       &k.ba.prior_inv_depth, &k.ba.prior_inv_depth_var, &k.sensor_inv_depth,
+                       &k.sensor_inv_depth_var, &k.inv_depth_var, &k.sent_inv_depth})
+      *m = r.mat();
+    if (k.ba.inv_depth.type() != CV_32FC1) r.fail("keyframe " + std::to_string(id) + ": no depths");
+    k.ba.T_world_cam = r.se3();
+    k.ba.fixed_pose = r.get<uint8_t>() != 0;
+    r.matrix(&k.covariance);
+    k.in_window = r.get<uint8_t>() != 0;
+    k.version = r.get<int32_t>();
+    k.sent_at = r.get<int32_t>();
+    k.sent_pose = r.se3();
+  }
+  const auto valid_id = [&](int id) { return id >= 0 && id < static_cast<int>(keyframes.size()); };
+  std::vector<int> kept_images, window;
+  r.vec(&kept_images);
+  r.vec(&window);
+  for (const std::vector<int>* ids : {&kept_images, &window})
+    for (int id : *ids)
+      if (!valid_id(id)) r.fail("keyframe id " + std::to_string(id) + " out of range");
+  std::vector<GraphEdge> edges(r.count(16));
+  for (GraphEdge& e : edges) {
+    e.i = r.get<int32_t>();
+    e.j = r.get<int32_t>();
+    e.anchor = r.get<int32_t>();
+    e.target = r.mat();
+    e.weight = r.mat();
+    if (r.get<uint8_t>()) e.T_i_other = r.se3();
+    if (!valid_id(e.i) || (!e.T_i_other && !valid_id(e.j)) ||
+        (e.anchor != -1 && !valid_id(e.anchor)))
+      r.fail("edge with a keyframe id out of range");
+    const cv::Mat& grid = keyframes[e.i].ba.inv_depth;
+    if (e.target.size != grid.size || e.weight.size != grid.size || e.target.type() != CV_32FC2 ||
+        e.weight.type() != CV_32FC2)
+      r.fail("edge " + std::to_string(e.i) + "-" + std::to_string(e.j) + ": bad grid images");
+  }
+  keyframes_ = std::move(keyframes);
+  kept_images_ = std::move(kept_images);
+  window_ = std::move(window);
+  edges_ = std::move(edges);
+}
+
 }  // namespace radslam

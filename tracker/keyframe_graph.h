@@ -13,6 +13,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "common/binary_io.h"
 #include "common/lie.h"
 #include "common/types.h"
 #include "tracker/dense_ba.h"
@@ -152,6 +153,12 @@ class KeyframeGraph {
   /// Records that keyframe id was sent now (version + 1) with its current estimate; returns
   /// the version sent.
   int markSent(int id);
+
+  /// The whole state (tracker checkpoints). load() checks the ids, the window and the edges
+  /// against the keyframes (BinaryReader::fail on a mismatch) and replaces the state; the
+  /// window size and the other options stay the constructor's.
+  void save(BinaryWriter* out) const;
+  void load(BinaryReader* in);
 
  private:
   int window_size_;

@@ -163,4 +163,18 @@ cv::Mat MotionSegmenter::segment(const cv::Mat& measured, const cv::Mat& predict
   return instance;
 }
 
+void MotionSegmenter::save(BinaryWriter* out) const {
+  out->mat(previous_);
+  out->put<int32_t>(next_id_);
+}
+
+void MotionSegmenter::load(BinaryReader* in) {
+  cv::Mat previous = in->mat();
+  if (!previous.empty() && previous.type() != CV_16UC1) in->fail("bad segmentation mask");
+  const int next_id = in->get<int32_t>();
+  if (next_id < params_.first_id) in->fail("bad segmentation id");
+  previous_ = previous;
+  next_id_ = next_id;
+}
+
 }  // namespace radslam

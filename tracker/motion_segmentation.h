@@ -17,6 +17,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "common/binary_io.h"
 #include "common/lie.h"
 #include "common/types.h"
 
@@ -51,6 +52,10 @@ class MotionSegmenter {
 
   /// Forgets the previous frame's components (ids are not reused).
   void reset() { previous_.release(); }
+
+  /// The state carried from frame to frame (tracker checkpoints); load() replaces it.
+  void save(BinaryWriter* out) const;
+  void load(BinaryReader* in);
 
  private:
   MotionSegmentationParams params_;

@@ -361,4 +361,104 @@ ObjectList ObjectTracker::track(const ObjectFrame& frame) {
   return out;
 }
 
+namespace {
+
+void putJointVector(BinaryWriter* w, const JointVector& theta) {
+  w->put<int32_t>(static_cast<int32_t>(theta.size()));
+  for (int i = 0; i < theta.size(); ++i) w->put(theta[i]);
+}
+
+JointVector getJointVector(BinaryReader* r) {
+  const int n = r->get<int32_t>();
+  if (n < 0 || n > 6) r->fail("bad joint coordinates");
+  JointVector theta(n);
+  for (int i = 0; i < n; ++i) theta[i] = r->get<double>();
+  return theta;
+}
+
+JointType getJointType(BinaryReader* r) {
+  const int8_t type = r->get<int8_t>();
+  if (type < 0 || type > static_cast<int8_t>(JointType::kRevolute)) r->fail("bad joint type");
+  return static_cast<JointType>(type);
+}
+
+}  // namespace
+
+void ObjectTracker::save(BinaryWriter* out) const {
+  BinaryWriter& w = *out;
+  w.put<uint32_t>(objects_.size());
+  for (const auto& [instance, state] : objects_) {
+    w.put<int32_t>(instance);
+    const TrackedObject& o = state.object;
+    w.put(o.object_id);
+    w.put(o.class_id);
+    w.str(o.class_name);
+    w.se3(o.T_world_object);
+    w.matrix(o.twist);
+    w.put(o.joint_type);
+    w.se3(o.T_world_joint);
+    w.put(o.parent_cluster);
+    w.matrix(o.covariance);
+    w.put(state.joint.type());
+    w.se3(state.joint.T_world_joint());
+    w.put<uint8_t>(state.joint_final);
+    w.se3(state.T_world_object_first);
+    w.put<uint32_t>(state.motions.size());
+    for (const SE3& M : state.motions) w.se3(M);
+    putJointVector(&w, state.last_theta);
+    w.se3(state.last_motion_world);
+    w.put(state.last_dt);
+    w.put<int32_t>(state.still_frames);
+    w.put<uint8_t>(state.is_static);
+  }
+  w.put<uint8_t>(has_previous_);
+  w.header(previous_.header);
+  w.put<int64_t>(previous_.frame_index);
+  for (const cv::Mat* m :
+       {&previous_.grey, &previous_.depth, &previous_.instance, &previous_.class_id})
+    w.mat(*m);
+  w.se3(previous_.T_world_cam);
+}
+
+void ObjectTracker::load(BinaryReader* in) {
+  BinaryReader& r = *in;
+  std::map<int, ObjectState> objects;
+  const uint32_t count = r.count(64);
+  for (uint32_t i = 0; i < count; ++i) {
+    const int instance = r.get<int32_t>();
+    ObjectState& state = objects[instance];
+    TrackedObject& o = state.object;
+    o.object_id = r.get<int32_t>();
+    o.class_id = r.get<int32_t>();
+    o.class_name = r.str();
+    o.T_world_object = r.se3();
+    r.matrix(&o.twist);
+    o.joint_type = getJointType(&r);
+    o.T_world_joint = r.se3();
+    o.parent_cluster = r.get<int32_t>();
+    r.matrix(&o.covariance);
+    const JointType joint_type = getJointType(&r);
+    state.joint = Joint(joint_type, r.se3());
+    state.joint_final = r.get<uint8_t>() != 0;
+    state.T_world_object_first = r.se3();
+    state.motions.resize(r.count(56));
+    for (SE3& M : state.motions) M = r.se3();
+    state.last_theta = getJointVector(&r);
+    state.last_motion_world = r.se3();
+    state.last_dt = r.get<double>();
+    state.still_frames = r.get<int32_t>();
+    state.is_static = r.get<uint8_t>() != 0;
+  }
+  ObjectFrame previous;
+  const bool has_previous = r.get<uint8_t>() != 0;
+  previous.header = r.header();
+  previous.frame_index = r.get<int64_t>();
+  for (cv::Mat* m : {&previous.grey, &previous.depth, &previous.instance, &previous.class_id})
+    *m = r.mat();
+  previous.T_world_cam = r.se3();
+  objects_ = std::move(objects);
+  has_previous_ = has_previous;
+  previous_ = std::move(previous);
+}
+
 }  // namespace radslam

@@ -22,6 +22,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "common/binary_io.h"
 #include "common/lie.h"
 #include "common/types.h"
 #include "tracker/frontend_flow.h"
@@ -88,6 +89,10 @@ class ObjectTracker {
   ObjectList track(const ObjectFrame& frame);
 
   bool hasDynamicClasses() const { return !params_.classes.empty(); }
+
+  /// The state carried from frame to frame (tracker checkpoints); load() replaces it.
+  void save(BinaryWriter* out) const;
+  void load(BinaryReader* in);
 
  private:
   struct ObjectState {

@@ -9,11 +9,8 @@
 #include <opencv2/core/utility.hpp>
 
 #include "tracker/frontend_depth.h"
-#include "tracker/frontend_refine.h"
 #include "tracker/mono_init.h"
-#include "tracker/motion_only.h"
-#include "tracker/motion_segmentation.h"
-#include "tracker/object_tracker.h"
+#include "tracker/tracker_internal.h"
 
 namespace radslam {
 namespace {
@@ -22,25 +19,6 @@ using Clock = std::chrono::steady_clock;
 
 double msSince(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
-}
-
-/// A frame's pose, kept relative to its reference keyframe so that it follows BA.
-struct FrameRecord {
-  Header header;
-  int64_t frame_index = 0;
-  int ref_kf = 0;
-  SE3 T_kf_frame;               // identity for keyframes
-  Mat6 cov_rel = Mat6::Zero();  // covariance of the frame pose given the keyframe's
-  TrackingState state = TrackingState::kTracking;
-  bool is_keyframe = false;
-};
-
-/// Covariance of T_world_frame = T_world_kf T_kf_frame from the keyframe's covariance and the
-/// relative one (independent): a right perturbation of T_world_kf moves the frame by
-/// Ad(T_frame_kf) delta.
-Mat6 composeCovariance(const Mat6& cov_kf, const SE3& T_kf_frame, const Mat6& cov_rel) {
-  const Mat6 Ad = T_kf_frame.inverse().adjoint();
-  return Ad * cov_kf * Ad.transpose() + cov_rel;
 }
 
 /// Per-pixel metric depth (CV_32FC1 m, 0 = unknown) from a rectified left -> right flow: the
@@ -62,119 +40,6 @@ cv::Mat stereoDepth(const cv::Mat& flow_lr, double fx, double baseline_m) {
 }
 
 }  // namespace
-
-struct Tracker::Impl {
-  Impl(const TrackerParams& p, TrackerMode mode);
-
-  // Per-frame steps.
-  void initialise(const Frame& frame, const PreparedImage& image, TrackerOutput* out);
-  void track(const Frame& frame, const PreparedImage& image, TrackerOutput* out);
-  /// The flows of the frame against its reference keyframe (the last keyframe).
-  struct TrackedFlow {
-    cv::Mat forward, backward;  // keyframe -> frame, frame -> keyframe (may be empty)
-    Correspondences correspondences;
-  };
-  void makeKeyframe(const Frame& frame, const PreparedImage& image, SE3 T_world_frame,
-                    const TrackedFlow* tracked, bool restart, TrackerOutput* out);
-
-  KeyframeData newKeyframeData(const Frame& frame, const PreparedImage& image,
-                               const SE3& T_world_cam);
-  SE3 predictPose(int64_t utime) const;
-  SE3 framePose(const FrameRecord& r) const {
-    return graph.keyframe(r.ref_kf).ba.T_world_cam * r.T_kf_frame;
-  }
-  Mat6 frameCovariance(const FrameRecord& r) const {
-    return composeCovariance(graph.keyframe(r.ref_kf).covariance, r.T_kf_frame, r.cov_rel);
-  }
-  PoseStamped poseMessage(const FrameRecord& r) const;
-
-  /// Grid correspondences a -> b from the flows (confidence from both), refined per cell.
-  /// Pixels of moving objects (working-size masks, may be empty) are left out.
-  Correspondences correspond(const cv::Mat& grey_a, const cv::Mat& gradients_a,
-                             const cv::Mat& structure_a, const cv::Mat& grey_b,
-                             const cv::Mat& flow_ab, const cv::Mat& flow_ba,
-                             const cv::Mat& moving_a, const cv::Mat& moving_b) const;
-
-  // Keyframe pairs, BA and output.
-  /// Flow a -> b and b -> a warm-started from the current estimate, as correspondences.
-  std::pair<Correspondences, Correspondences> measureBothWays(int a, int b, WarmStart warm_start);
-  void measurePair(int a, int b, WarmStart warm_start);
-  /// Loop edges between window keyframe id and anchor a; false (no edge) when too few pixels
-  /// are tracked.
-  bool measureLoop(int id, int a);
-  void measureStereo(int id, WarmStart warm_start);
-  /// The inverse-depth prior of keyframe k (sensor depth where measured, else weak) into *out.
-  void setPrior(const KeyframeData& k, DenseBaKeyframe* out) const;
-  void setPriors();
-  DenseBaGauge gauge(const DenseBaProblem& problem) const;
-  /// Global BA over every keyframe that kept its image (finish()): flow edges between each and
-  /// its most overlapping others, warm-started by the final estimate, then one BA over all.
-  void globalBa(TrackerOutput* out);
-  bool runBa(int iterations);
-  void updateMarginals();
-  /// New keyframes and changed ones that are due (all changed ones when `now`).
-  void emitChangedKeyframes(TrackerOutput* out, bool now = false);
-  Keyframe keyframeMessage(int id);
-  TrackingState trackingState() const {
-    return mode == TrackerMode::kMono && !ba_ran ? TrackingState::kInitializing
-                                                 : TrackingState::kTracking;
-  }
-
-  TrackerParams p;
-  TrackerMode mode;
-  FlowOptions flow_options;
-  RefineOptions refine_options;
-  WarmStart frame_warm_start = WarmStart::kCoarse;
-  KeyframePolicy keyframe_policy;
-  DepthUpsamplingOptions upsampling;
-  ResendTolerance tolerance;
-  DenseBaOptions ba_options;
-
-  std::unique_ptr<ImagePreparer> preparer;
-  DenseFlow flow;
-  KeyframeGraph graph;
-  DenseBundleAdjuster ba;
-  MotionOnlyAligner aligner;
-  std::vector<FrameRecord> frames;
-  double baseline_m = 0;  // stereo
-  bool ba_ran = false;
-  bool first_ba_done = false;  // frames were aligned again after the first BA
-  /// Frames are aligned against their keyframe's depths of the moment; BA refines those depths
-  /// while the keyframe is in the window (monocular frames before the first BA even see
-  /// constant depths). Their correspondences are kept and they are aligned again after the
-  /// first BA, when their keyframe leaves the window (its estimate is final then) and in
-  /// finish(): memory stays bounded by the window.
-  struct PendingFrame {
-    size_t record = 0;  // index into frames
-    cv::Mat target, weight;
-  };
-  std::vector<PendingFrame> pending_frames;
-  /// Moving objects: null until the first frame (it needs the working camera) or when
-  /// dynamic_objects is off. moving: the frame's mask (working size, 255 = moving object;
-  /// empty: nothing moves).
-  std::unique_ptr<ObjectTracker> objects;
-  cv::Mat moving;
-  /// Frames without class masks: moving objects from the flow (null when off), and this
-  /// frame's instance and class masks from it (empty when nothing moves).
-  std::unique_ptr<MotionSegmenter> segmenter;
-  cv::Mat segmented_instance, segmented_class;
-  cv::Mat frame_depth;  // stereo: the current frame's depth once frameDepth computed it
-  /// The current frame's metric depth (CV_32FC1 working size, m, 0 = unknown): the sensor's
-  /// (RGB-D) or from one more flow, left to right (stereo, computed once per frame); empty in
-  /// monocular mode.
-  const cv::Mat& frameDepth(const PreparedImage& image);
-  /// Segments the frame's moving pixels from its flow to the reference keyframe; where some
-  /// move, their correspondences are measured again without them and the frame re-aligned.
-  void segmentMotion(const KeyframeData& ref, const PreparedImage& image, TrackedFlow* tracked,
-                     MotionOnlyResult* aligned);
-  /// The frame's objects from its depth (sensor or stereo) and its final pose.
-  ObjectList trackObjects(const Frame& frame, const PreparedImage& image, const SE3& T_world_cam);
-  /// Aligns the pending frames again; with `leaving`, only those of these keyframes, which are
-  /// then dropped.
-  void realignFrames(const std::vector<int>* leaving);
-  int lost_streak = 0;
-  TrackerStats stats;
-};
 
 Tracker::Impl::Impl(const TrackerParams& params, TrackerMode m)
     : p(params),
@@ -245,6 +110,34 @@ const GridGeometry* Tracker::geometry() const {
 
 const KeyframeGraph& Tracker::graph() const { return impl_->graph; }
 
+std::unique_ptr<ImagePreparer> Tracker::Impl::makePreparer(const CameraModel& camera) const {
+  const int width =
+      p.working_pixels <= 0
+          ? 0
+          : static_cast<int>(std::lround(
+                std::sqrt(p.working_pixels * static_cast<double>(camera.width) / camera.height)));
+  return std::make_unique<ImagePreparer>(camera, width, p.grid_cell);
+}
+
+void Tracker::Impl::setUpCamera(std::unique_ptr<ImagePreparer> first_preparer) {
+  preparer = std::move(first_preparer);
+  if (!p.dynamic_objects) return;
+  ObjectTrackerParams object_params;
+  object_params.classes = parseDynamicClasses(p.dynamic_classes);
+  object_params.stride = p.object_stride;
+  object_params.flow_warp_smoothing_px = p.object_flow_smoothing_px;
+  if (p.motion_segmentation) {
+    // Objects found by motion segmentation: a class of their own with a free joint.
+    object_params.classes.push_back(DynamicClass{p.motion_class_id, JointType::kFree, -1});
+    MotionSegmentationParams segmentation;
+    segmentation.min_residual_px = p.motion_residual_px;
+    segmentation.min_object_pixels = p.motion_min_pixels;
+    segmenter = std::make_unique<MotionSegmenter>(segmentation);
+  }
+  objects =
+      std::make_unique<ObjectTracker>(object_params, preparer->geometry().working, flow_options);
+}
+
 TrackerOutput Tracker::process(const Frame& frame) {
   const auto t0 = Clock::now();
   Impl& s = *impl_;
@@ -257,41 +150,18 @@ TrackerOutput Tracker::process(const Frame& frame) {
   if (mode_ == TrackerMode::kStereo && frame.right.empty()) {
     throw std::invalid_argument(where + "stereo mode needs a right image");
   }
-  std::unique_ptr<ImagePreparer> preparer;
+  std::unique_ptr<ImagePreparer> first_preparer;
   if (!s.preparer) {
-    const int width = params_.working_pixels <= 0
-                          ? 0
-                          : static_cast<int>(std::lround(std::sqrt(
-                                params_.working_pixels * static_cast<double>(frame.camera.width) /
-                                frame.camera.height)));
-    preparer = std::make_unique<ImagePreparer>(frame.camera, width, params_.grid_cell);
+    first_preparer = s.makePreparer(frame.camera);
   } else if (!s.preparer->matches(frame.camera)) {
     const CameraModel& c = s.preparer->input();
     throw std::invalid_argument(where + "camera differs from the first frame's (" +
                                 std::to_string(c.width) + "x" + std::to_string(c.height) +
                                 " fx=" + std::to_string(c.fx) + "); one tracker, one camera");
   }
-  const PreparedImage image = (preparer ? *preparer : *s.preparer).prepare(frame, false);
-  if (preparer) {
-    s.preparer = std::move(preparer);
-    if (params_.dynamic_objects) {
-      ObjectTrackerParams object_params;
-      object_params.classes = parseDynamicClasses(params_.dynamic_classes);
-      object_params.stride = params_.object_stride;
-      object_params.flow_warp_smoothing_px = params_.object_flow_smoothing_px;
-      if (params_.motion_segmentation) {
-        // Objects found by motion segmentation: a class of their own with a free joint.
-        object_params.classes.push_back(
-            DynamicClass{params_.motion_class_id, JointType::kFree, -1});
-        MotionSegmentationParams segmentation;
-        segmentation.min_residual_px = params_.motion_residual_px;
-        segmentation.min_object_pixels = params_.motion_min_pixels;
-        s.segmenter = std::make_unique<MotionSegmenter>(segmentation);
-      }
-      s.objects = std::make_unique<ObjectTracker>(object_params, s.preparer->geometry().working,
-                                                  s.flow_options);
-    }
-  }
+  const PreparedImage image =
+      (first_preparer ? *first_preparer : *s.preparer).prepare(frame, false);
+  if (first_preparer) s.setUpCamera(std::move(first_preparer));
   if (mode_ == TrackerMode::kStereo && s.baseline_m == 0) s.baseline_m = frame.baseline_m;
   s.moving = s.objects ? s.objects->movingMask(image.instance, image.class_id) : cv::Mat();
 

@@ -247,6 +247,18 @@ class Tracker {
   /// `ids` empty = all of them.
   std::vector<Keyframe> republishKeyframes(const std::vector<int>& ids = {});
 
+  /// Checkpoint: everything process() carries from frame to frame (keyframes with their images,
+  /// depths, marginals and edges, every frame's pose, objects, publication versions), so that
+  /// a tracker loaded from it continues exactly as this one would. Throws std::runtime_error
+  /// naming the file (written to PATH.tmp and renamed: a crash leaves the last checkpoint).
+  void saveCheckpoint(const std::string& path) const;
+  /// Replaces the state by a checkpoint's. The checkpoint must come from a tracker with the
+  /// same mode, working size, grid, window and object options; throws std::runtime_error naming
+  /// the file and what is wrong (the state is then unchanged).
+  void loadCheckpoint(const std::string& path);
+  /// Frame index of the last frame processed (-1: none).
+  int64_t lastFrameIndex() const;
+
   const TrackerParams& params() const { return params_; }
   TrackerMode mode() const { return mode_; }
   /// Null before the first frame.

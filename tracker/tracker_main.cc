@@ -1,4 +1,5 @@
 // radslam-tracker: dense SLAM front end on the bus (CAMERA in; POSE, KEYFRAME, STATUS out).
+#include <filesystem>
 #include <iostream>
 
 #include "common/bus.h"
@@ -16,6 +17,11 @@ const char* kUsage = R"(usage: radslam-tracker [options]
   --set KEY=VALUE  override one tracker parameter (comma-separate several: a=1,b=2)
   --queue N        frames kept waiting when they arrive faster than tracked (default 4)
   --out DIR        run folder (accepted for the launcher; the tracker writes nothing there)
+  --checkpoint FILE  write a checkpoint there every --checkpoint-s seconds (default 20) and
+                   after re-publishing keyframes (off without this option)
+  --checkpoint-s S
+  --resume FILE    continue from this checkpoint (a restart after a crash) and ask the player
+                   to play again from the frame after it; a missing file is a warning
 )";
 
 int run(int argc, char** argv) {
@@ -32,6 +38,9 @@ int run(int argc, char** argv) {
   TrackerNodeOptions options;
   options.max_queue = cli.getInt("queue", options.max_queue);
   cli.get("out", "");
+  options.checkpoint_path = cli.get("checkpoint", "");
+  options.checkpoint_period_s = cli.getDouble("checkpoint-s", 20.0);
+  const std::string resume = cli.get("resume", "");
   cli.finish();
 
   std::vector<std::string> overrides;
@@ -52,6 +61,13 @@ int run(int argc, char** argv) {
   installStopSignals();
   Bus bus(url, prefix, "tracker");
   TrackerNode node(&bus, params, options);
+  if (!resume.empty()) {
+    if (std::filesystem::exists(resume)) {
+      node.resume(resume);
+    } else {
+      std::cerr << "radslam-tracker: warning: no checkpoint " << resume << " to resume from\n";
+    }
+  }
   std::cerr << "radslam-tracker: " << params.mode << " mode, listening on "
             << bus.fullChannel(channel::kCamera) << "\n";
   return node.run();

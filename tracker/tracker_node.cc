@@ -1,6 +1,7 @@
 #include "tracker/tracker_node.h"
 
 #include <malloc.h>
+#include <unistd.h>
 #include <algorithm>
 #include <chrono>
 #include <iostream>
@@ -21,8 +22,9 @@ double secondsSince(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
 }
 
-constexpr int kKeyframeGapMs = 50;    // between keyframes of one burst (~40 MB/s at most)
-constexpr int kRepublishGapMs = 200;  // between re-published keyframes (~10 MB/s)
+constexpr int kKeyframeGapMs = 50;             // between keyframes of one burst (~40 MB/s at most)
+constexpr int kRepublishGapMs = 200;           // between re-published keyframes (~10 MB/s)
+constexpr double kRewindRequestPeriodS = 1.0;  // CONTROL REWIND repeated until frames come
 
 // Warn about the first few of a kind, then every 100th, so a bad stream cannot flood the log.
 bool shouldWarn(int64_t count) { return count <= 5 || count % 100 == 0; }
@@ -231,6 +233,33 @@ TrackerNode::TrackerNode(Bus* bus, TrackerParams params, TrackerNodeOptions opti
   if (options_.max_queue < 1) throw std::invalid_argument("tracker queue must hold >= 1 frame");
   bus_->subscribe<Frame>(channel::kCamera, [this](const Frame& f) { onFrame(f); });
   bus_->subscribe<Control>(channel::kControl, [this](const Control& c) { onControl(c); });
+  last_checkpoint_ = Clock::now();
+}
+
+void TrackerNode::resume(const std::string& checkpoint) {
+  tracker_->loadCheckpoint(checkpoint);
+  last_index_ = tracker_->lastFrameIndex();
+  rewind_from_ = last_index_ + 1;
+  rewind_token_ = std::to_string(::getpid()) + "-" +
+                  std::to_string(std::chrono::system_clock::now().time_since_epoch().count());
+  last_rewind_request_ = Clock::now() - std::chrono::hours(1);
+  std::cerr << "radslam-tracker: resumed from " << checkpoint << " at frame " << last_index_ << " ("
+            << tracker_->graph().size() << " keyframes)\n";
+}
+
+void TrackerNode::saveCheckpoint() {
+  const auto t0 = Clock::now();
+  try {
+    tracker_->saveCheckpoint(options_.checkpoint_path);
+  } catch (const std::runtime_error& e) {
+    reporter_.setError(e.what());
+    std::cerr << "radslam-tracker: warning: " << e.what() << "\n";
+  }
+  last_checkpoint_ = Clock::now();
+  const double ms = 1e3 * secondsSince(t0);
+  reporter_.setValue("checkpoint_ms", ms);
+  std::cerr << "radslam-tracker: checkpoint at frame " << last_index_ << " written in "
+            << static_cast<int>(ms) << " ms\n";
 }
 
 void TrackerNode::onFrame(const Frame& frame) {
@@ -287,6 +316,7 @@ void TrackerNode::handle(const Frame& frame) {
     }
   }
   last_index_ = frame.frame_index;
+  rewind_from_ = -1;  // frames flow again
   if (output.has_pose) {
     ++processed_;
     publish(output);
@@ -356,6 +386,10 @@ void TrackerNode::processQueued() {
     const Frame frame = std::move(queue_.front());
     queue_.pop_front();
     handle(frame);
+    if (!options_.checkpoint_path.empty() && options_.checkpoint_period_s > 0 &&
+        secondsSince(last_checkpoint_) >= options_.checkpoint_period_s) {
+      saveCheckpoint();
+    }
     // Keep the queue current (and hear CONTROL) between frames.
     if (bus_->handle(0) < 0) break;
   }
@@ -400,6 +434,16 @@ int TrackerNode::run() {
       std::cerr << "radslam-tracker: re-publishing " << keyframes.size() << " keyframes\n";
       republish_queue_.insert(republish_queue_.end(), std::make_move_iterator(keyframes.begin()),
                               std::make_move_iterator(keyframes.end()));
+      // Their new versions are on record: a tracker resumed later never sends one again.
+      if (!options_.checkpoint_path.empty() && options_.checkpoint_period_s > 0) saveCheckpoint();
+    }
+    if (rewind_from_ >= 0 && secondsSince(last_rewind_request_) >= kRewindRequestPeriodS) {
+      Control rewind;
+      rewind.command = ControlCommand::kRewind;
+      rewind.target = "player";
+      rewind.argument = rewindRequest(rewind_from_, rewind_token_);
+      bus_->publish(channel::kControl, rewind);
+      last_rewind_request_ = Clock::now();
     }
     if (!republish_queue_.empty() &&
         Clock::now() - last_republish_ >= std::chrono::milliseconds(kRepublishGapMs)) {
@@ -408,7 +452,7 @@ int TrackerNode::run() {
       last_republish_ = Clock::now();
     }
     if (secondsSince(last_status) >= options_.status_period_s) {
-      publishStatus(processed_ > 0 ? ProcessState::kRunning : ProcessState::kIdle);
+      publishStatus(last_index_ >= 0 ? ProcessState::kRunning : ProcessState::kIdle);
       last_status = Clock::now();
     }
     if (options_.idle_exit_s > 0 && processed_ > 0 &&

@@ -36,6 +36,10 @@ struct TrackerNodeOptions {
   /// Exit after this long without a frame once at least one was processed (0 = never); for
   /// file:// replays whose end the bus reports anyway.
   double idle_exit_s = 0;
+  /// Checkpoint written every checkpoint_period_s (after a frame) and after re-publishing
+  /// keyframes, when both are set: what a restarted tracker resumes from.
+  std::string checkpoint_path;
+  double checkpoint_period_s = 0;
 };
 
 /// Runs a Tracker on the bus until a stop is requested (SIGINT/SIGTERM through common/cli.h,
@@ -46,6 +50,12 @@ class TrackerNode {
  public:
   /// Subscribes to CAMERA and CONTROL on `bus`. Throws std::invalid_argument on bad params.
   TrackerNode(Bus* bus, TrackerParams params, TrackerNodeOptions options = {});
+
+  /// Continues from a checkpoint of an earlier run of this tracker (restart after a crash):
+  /// frames up to the checkpoint's last are skipped, and the player is asked (CONTROL REWIND,
+  /// repeated until the next frame arrives) to play again from the one after it. Throws
+  /// std::runtime_error naming the file.
+  void resume(const std::string& checkpoint);
 
   /// The loop; returns the process exit code (0).
   int run();
@@ -64,6 +74,7 @@ class TrackerNode {
   /// Paced: a keyframe is megabytes of UDP fragments.
   void publishKeyframes(const std::vector<Keyframe>& keyframes);
   void publishStatus(ProcessState state);
+  void saveCheckpoint();
   void finish();
 
   Bus* bus_;
@@ -83,6 +94,12 @@ class TrackerNode {
   std::deque<Keyframe> republish_queue_;
   std::chrono::steady_clock::time_point last_republish_;
   TrackerStats last_stats_;
+  std::chrono::steady_clock::time_point last_checkpoint_;
+  // After resume(): the frame the player is asked to play again from (-1: none pending), the
+  // request's token and when it was last sent.
+  int64_t rewind_from_ = -1;
+  std::string rewind_token_;
+  std::chrono::steady_clock::time_point last_rewind_request_;
 };
 
 }  // namespace radslam

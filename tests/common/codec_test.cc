@@ -264,8 +264,8 @@ TEST(Codec, PoseValidation) {
 
 TEST(Codec, EnumRangesChecked) {
   std::vector<uint8_t> b = encode(Control());
-  b[8 + 8 + 8 + 5] = 5;  // command after the header (empty sender)
-  EXPECT_NE(decodeError<Control>(b).find("unknown control command 5"), std::string::npos);
+  b[8 + 8 + 8 + 5] = 6;  // command after the header (empty sender)
+  EXPECT_NE(decodeError<Control>(b).find("unknown control command 6"), std::string::npos);
   b = encode(Status());
   b[8 + 8 + 8 + 5 + 5 + 4] = static_cast<uint8_t>(-1);  // state after process "" and pid
   EXPECT_NE(decodeError<Status>(b).find("unknown process state -1"), std::string::npos);

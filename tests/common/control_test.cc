@@ -17,5 +17,15 @@ TEST(KeyframeRequest, AllOrAListOfIds) {
   EXPECT_FALSE(parseKeyframeRequest("field", &ids));
 }
 
+TEST(Control, RewindRequestsRoundTripAndBadOnesAreRefused) {
+  int64_t frame = -1;
+  std::string token;
+  ASSERT_TRUE(parseRewindRequest(rewindRequest(1234, "4711-9"), &frame, &token));
+  EXPECT_EQ(frame, 1234);
+  EXPECT_EQ(token, "4711-9");
+  for (const char* bad : {"", "12", ":x", "-3:x", "1x:y", "99999999999999999999:x"})
+    EXPECT_FALSE(parseRewindRequest(bad, &frame, &token)) << bad;
+}
+
 }  // namespace
 }  // namespace radslam

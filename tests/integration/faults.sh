@@ -5,13 +5,16 @@
 #      (RADSLAM_DROP, evenly spread: the 10th, 30th, ...). The mapper must ask the tracker for
 #      the lost keyframes and end with all of them; the renderer must follow the field through
 #      the gaps (same final version as the mapper's).
-#   2. a killed mapper, renderer and recorder: the mapper gets SIGKILL once its first
-#      checkpoint exists, the renderer once the mapper has resumed, the recorder once the
-#      renderer was restarted; the launcher (--restart mapper,renderer,recorder) restarts all
-#      three. The mapper resumes from the checkpoint, asks for the keyframes it lacks and ends
-#      with all of them; the renderer re-syncs by snapshot; the recorder continues its log
-#      (--resume) and its exports hold what it heard before the kill.
-# The tracker is deterministic in lock-step: its trajectory must equal the undisturbed one.
+#   2. every process but the player killed in turn: the tracker gets SIGKILL once its first
+#      checkpoint exists, the mapper once its own exists and the tracker has resumed, the
+#      renderer once the mapper has resumed, the recorder once the renderer was restarted; the
+#      launcher (--restart tracker,mapper,renderer,recorder) restarts all four. The tracker
+#      resumes from its checkpoint and the player plays again from the frame after it; the
+#      mapper resumes from its checkpoint, asks for the keyframes it lacks and ends with all of
+#      them; the renderer re-syncs by snapshot; the recorder continues its log (--resume) and
+#      its exports hold what it heard before the kill.
+# The tracker is deterministic in lock-step (also across its checkpoint): its trajectory must
+# equal the undisturbed one.
 # Exit codes: 0 pass, 1 fail, 77 skip (no multicast route on this host).
 #
 # usage: faults.sh BIN_DIR   (RADSLAM_FAULT_FRAMES, default 240; KEEP=1 keeps the files)
@@ -62,24 +65,27 @@ run clean
 echo "run 'drops': 5% of KEYFRAME and FIELD lost"
 RADSLAM_DROP="KEYFRAME=0.05,FIELD=0.05" run drops
 
-echo "run 'kill': mapper, renderer and recorder killed, restarted by the launcher"
-"$launcher" run "${args[@]}" --out "$work/kill" --rate 0.5 --restart mapper,renderer,recorder \
-    --checkpoint-s 2 >"$work/kill.out" 2>&1 &
+echo "run 'kill': tracker, mapper, renderer and recorder killed, restarted by the launcher"
+"$launcher" run "${args[@]}" --out "$work/kill" --rate 0.5 \
+    --restart tracker,mapper,renderer,recorder --checkpoint-s 2 >"$work/kill.out" 2>&1 &
 launcher_pid=$!
 killed=0
 for _ in $(seq 1 600); do
   kill -0 "$launcher_pid" 2>/dev/null || break
-  if [ $killed -eq 0 ] && [ -s "$work/kill/mapper.ckpt" ]; then
-    pkill -KILL -f "radslam-mapper .*--out $work/kill" && killed=1 && echo "  mapper killed"
-  elif [ $killed -eq 1 ] && grep -q 'resumed from' "$work/kill/logs/mapper.log" 2>/dev/null; then
-    pkill -KILL -f "radslam-renderer .*--out $work/kill" && killed=2 && echo "  renderer killed"
-  elif [ $killed -eq 2 ] && grep -q 'restarted by the launcher' "$work/kill/logs/renderer.log"; then
-    pkill -KILL -f "radslam-record .*--out $work/kill" && killed=3 && echo "  recorder killed"
+  if [ $killed -eq 0 ] && [ -s "$work/kill/tracker.ckpt" ]; then
+    pkill -KILL -f "radslam-tracker .*--out $work/kill" && killed=1 && echo "  tracker killed"
+  elif [ $killed -eq 1 ] && [ -s "$work/kill/mapper.ckpt" ] \
+      && grep -q 'resumed from' "$work/kill/logs/tracker.log" 2>/dev/null; then
+    pkill -KILL -f "radslam-mapper .*--out $work/kill" && killed=2 && echo "  mapper killed"
+  elif [ $killed -eq 2 ] && grep -q 'resumed from' "$work/kill/logs/mapper.log" 2>/dev/null; then
+    pkill -KILL -f "radslam-renderer .*--out $work/kill" && killed=3 && echo "  renderer killed"
+  elif [ $killed -eq 3 ] && grep -q 'restarted by the launcher' "$work/kill/logs/renderer.log"; then
+    pkill -KILL -f "radslam-record .*--out $work/kill" && killed=4 && echo "  recorder killed"
   fi
   sleep 0.2
 done
 wait "$launcher_pid" || { tail -n 30 "$work/kill.out"; fail "run 'kill' failed"; }
-[ $killed -eq 3 ] || fail "run 'kill' ended before all three kills (stage $killed)"
+[ $killed -eq 4 ] || fail "run 'kill' ended before all four kills (stage $killed)"
 grep 'radslam-record: resuming' "$work/kill/logs/recorder.log" \
     || fail "run 'kill': the restarted recorder did not resume its log"
 
@@ -118,9 +124,13 @@ drops=$(cat "$work"/drops/logs/*.log | grep -c 'fault injection: dropped')
 check "[ $drops -gt 0 ]" "messages were dropped in run 'drops' ($drops logged)"
 check "grep -q 'asking the tracker again for keyframes' '$work/drops/logs/mapper.log'" \
     "the mapper asked again for lost keyframes: $(grep -o 'keyframes [0-9,]*$' "$work/drops/logs/mapper.log" | tr '\n' ' ')"
+check "grep -q 'resumed from' '$work/kill/logs/tracker.log'" \
+    "the restarted tracker $(grep -o 'resumed from.*' "$work/kill/logs/tracker.log" | head -n 1)"
+check "grep -q 'playing again from frame' '$work/kill/logs/player.log'" \
+    "the player $(grep -o 'playing again from frame [0-9]*' "$work/kill/logs/player.log" | head -n 1)"
 check "grep -q 'resumed from' '$work/kill/logs/mapper.log'" \
     "the restarted mapper $(grep -o 'resumed from.*' "$work/kill/logs/mapper.log" | head -n 1)"
-check "[ \$(grep -c 'restarting it' '$work/kill.out') -ge 3 ]" \
-    "the launcher restarted all three: $(grep -o '[a-z]* (pid [0-9]*) exited (code [0-9]*)' "$work/kill.out" | tr '\n' ' ')"
+check "[ \$(grep -c 'restarting it' '$work/kill.out') -ge 4 ]" \
+    "the launcher restarted all four: $(grep -o '[a-z]* (pid [0-9]*) exited (code [0-9]*)' "$work/kill.out" | tr '\n' ' ')"
 [ $status -eq 0 ] || fail "see above"
 echo "PASS"

@@ -80,6 +80,39 @@ TEST_F(PlayerTest, LockstepWaitsForEveryFrameAndGivesUpOnSilence) {
   EXPECT_EQ(asked, (std::vector<int64_t>{0, 1, 2, 3}));
 }
 
+// A tracker resumed from a checkpoint at frame 1 after frame 4 was sent: the player plays frames
+// 2 to 4 again, then goes on; with a stride and in the backwards loop too.
+TEST_F(PlayerTest, LockstepPlaysAgainFromTheFrameAskedFor) {
+  auto dataset = openDataset("synthetic:" + dir_);
+  for (const int stride : {1, 2}) {
+    PlayerParams params;
+    params.rate = 0;
+    params.lockstep = true;
+    params.end = 6;
+    params.stride = stride;
+    params.loops = 2;
+    std::vector<int64_t> sent;
+    int64_t rewind_after = stride == 1 ? 4 : 8, rewind_to = stride == 1 ? 2 : 7;
+    PlayerSinks sinks;
+    sinks.frame = [&](const Frame& f) { sent.push_back(f.frame_index); };
+    sinks.wait_for_ack = [](int64_t, double) { return true; };
+    sinks.take_rewind = [&]() -> int64_t {
+      if (sent.back() != rewind_after) return -1;
+      rewind_after = -1;  // once
+      return rewind_to;
+    };
+    Player player(params, sinks);
+    const PlayerStats stats = player.play(*dataset);
+    EXPECT_EQ(stats.rewinds, 1);
+    if (stride == 1) {
+      EXPECT_EQ(sent, (std::vector<int64_t>{0, 1, 2, 3, 4, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11}));
+    } else {
+      // Indices 0 2 4 | 6 8 10; 7 is not played: the next one from it is 8.
+      EXPECT_EQ(sent, (std::vector<int64_t>{0, 2, 4, 6, 8, 8, 10}));
+    }
+  }
+}
+
 TEST_F(PlayerTest, UnreadableFrameIsSkippedWithoutStopping) {
   const std::string broken = ::testing::TempDir() + "/player_test_broken";
   std::filesystem::remove_all(broken);

@@ -430,6 +430,31 @@ TEST(Flow, TargetsMatchTrueReprojectionOnSyntheticRoom) {
 // Forward motion along the synthetic street: the near road's flow varies fast across the image.
 // Started coarse from the true flow, DIS shrinks it (downsampled to its coarsest level, the
 // prediction is lost there); warped by the prediction it measures the small residual instead.
+// OpenCV's DIS kept a warm start for the calls after it: the same pair, computed without one,
+// moved by 34 px after a warm-started call on another pair. A flow must depend on its inputs
+// (up to 1e-6 px: OpenCV's vector code differs with the buffers' alignment).
+TEST(Flow, AFlowDependsOnItsInputsAlone) {
+  SyntheticConfig config;
+  config.scene = "room";
+  config.width = 320;
+  config.height = 240;
+  config.frames = 30;
+  const SyntheticScene scene = SyntheticScene::make(config);
+  const cv::Mat a = toGrey(scene.frame(0).color), b = toGrey(scene.frame(8).color);
+  const cv::Mat c = toGrey(scene.frame(16).color), d = toGrey(scene.frame(24).color);
+  DenseFlow fresh(FlowOptions{}), used(FlowOptions{});
+  const cv::Mat warm_start(a.size(), CV_32FC2, cv::Scalar(3.f, -2.f));
+  for (WarmStart mode : {WarmStart::kCoarse, WarmStart::kWarp}) {
+    used.compute(c, d, warm_start, WarmStart::kCoarse);
+    const cv::Mat expected = fresh.compute(a, b, {}, mode);
+    const cv::Mat again = used.compute(a, b, {}, mode);
+    EXPECT_LT(cv::norm(expected, again, cv::NORM_INF), 1e-4);
+    const cv::Mat warm_expected = fresh.compute(a, b, warm_start, mode);
+    used.compute(c, d, {}, mode);
+    EXPECT_LT(cv::norm(warm_expected, used.compute(a, b, warm_start, mode), cv::NORM_INF), 1e-4);
+  }
+}
+
 TEST(Flow, WarpedWarmStartKeepsTheNearGroundFlow) {
   SyntheticConfig config;
   config.scene = "street";

@@ -1,0 +1,177 @@
+// Tracker checkpoints: one little-endian binary file (common/binary_io.h).
+//   "RSTRKCK\0", u32 format version
+//   the options the state depends on (mode, working size, grid, window, objects), checked
+//   u8 has camera, then the input camera
+//   stereo baseline, flags, lost streak, statistics
+//   u32 frames, each: header, index, reference keyframe, relative pose and covariance, state
+//   u32 pending frames, each: frame record and its correspondences
+//   the keyframe graph (KeyframeGraph::save), the object tracker and the motion segmenter
+#include <cstring>
+#include <stdexcept>
+#include <string>
+#include <tuple>
+
+#include "common/binary_io.h"
+#include "tracker/tracker_internal.h"
+
+namespace radslam {
+namespace {
+
+constexpr char kMagic[8] = {'R', 'S', 'T', 'R', 'K', 'C', 'K', '\0'};
+constexpr uint32_t kFormat = 1;
+
+/// What a checkpoint's state is only valid with.
+struct StateOptions {
+  int32_t mode = 0, working_pixels = 0, grid_cell = 0, window_size = 0;
+  uint8_t dynamic_objects = 0, motion_segmentation = 0;
+
+  explicit StateOptions(const TrackerParams& p, TrackerMode m)
+      : mode(static_cast<int32_t>(m)),
+        working_pixels(p.working_pixels),
+        grid_cell(p.grid_cell),
+        window_size(p.window_size),
+        dynamic_objects(p.dynamic_objects),
+        motion_segmentation(p.motion_segmentation) {}
+  StateOptions() = default;
+  void write(BinaryWriter* w) const {
+    for (int32_t v : {mode, working_pixels, grid_cell, window_size}) w->put(v);
+    w->put(dynamic_objects);
+    w->put(motion_segmentation);
+  }
+  void read(BinaryReader* r) {
+    for (int32_t* v : {&mode, &working_pixels, &grid_cell, &window_size}) *v = r->get<int32_t>();
+    dynamic_objects = r->get<uint8_t>();
+    motion_segmentation = r->get<uint8_t>();
+  }
+  bool operator==(const StateOptions& o) const {
+    return std::tie(mode, working_pixels, grid_cell, window_size, dynamic_objects,
+                    motion_segmentation) == std::tie(o.mode, o.working_pixels, o.grid_cell,
+                                                     o.window_size, o.dynamic_objects,
+                                                     o.motion_segmentation);
+  }
+  std::string describe() const {
+    return std::string("mode ") + trackerModeName(static_cast<TrackerMode>(mode)) +
+           ", working_pixels " + std::to_string(working_pixels) + ", grid_cell " +
+           std::to_string(grid_cell) + ", window_size " + std::to_string(window_size) +
+           ", dynamic_objects " + std::to_string(dynamic_objects) + ", motion_segmentation " +
+           std::to_string(motion_segmentation);
+  }
+};
+
+void writeCamera(BinaryWriter* w, const CameraModel& c) {
+  w->put<int32_t>(c.width);
+  w->put<int32_t>(c.height);
+  w->put(c.type);
+  for (double v : {c.fx, c.fy, c.cx, c.cy}) w->put(v);
+  w->vec(c.distortion);
+}
+
+CameraModel readCamera(BinaryReader* r) {
+  CameraModel c;
+  c.width = r->get<int32_t>();
+  c.height = r->get<int32_t>();
+  c.type = r->get<CameraModel::Type>();
+  for (double* v : {&c.fx, &c.fy, &c.cx, &c.cy}) *v = r->get<double>();
+  r->vec(&c.distortion);
+  return c;
+}
+
+}  // namespace
+
+void Tracker::saveCheckpoint(const std::string& path) const {
+  const Impl& s = *impl_;
+  BinaryWriter w(path, "tracker checkpoint " + path);
+  w.bytes(kMagic, sizeof(kMagic));
+  w.put(kFormat);
+  StateOptions(params_, mode_).write(&w);
+  w.put<uint8_t>(s.preparer != nullptr);
+  if (s.preparer) writeCamera(&w, s.preparer->input());
+  w.put(s.baseline_m);
+  w.put<uint8_t>(s.ba_ran);
+  w.put<uint8_t>(s.first_ba_done);
+  w.put<int32_t>(s.lost_streak);
+  w.put(s.stats);
+  w.put<uint32_t>(s.frames.size());
+  for (const FrameRecord& f : s.frames) {
+    w.header(f.header);
+    w.put<int64_t>(f.frame_index);
+    w.put<int32_t>(f.ref_kf);
+    w.se3(f.T_kf_frame);
+    w.matrix(f.cov_rel);
+    w.put(f.state);
+    w.put<uint8_t>(f.is_keyframe);
+  }
+  w.put<uint32_t>(s.pending_frames.size());
+  for (const Impl::PendingFrame& f : s.pending_frames) {
+    w.put<uint64_t>(f.record);
+    w.mat(f.target);
+    w.mat(f.weight);
+  }
+  s.graph.save(&w);
+  w.put<uint8_t>(s.objects != nullptr);
+  if (s.objects) s.objects->save(&w);
+  w.put<uint8_t>(s.segmenter != nullptr);
+  if (s.segmenter) s.segmenter->save(&w);
+  w.commit();
+}
+
+void Tracker::loadCheckpoint(const std::string& path) {
+  BinaryReader r(path, "tracker checkpoint " + path);
+  char magic[8];
+  r.bytes(magic, sizeof(magic));
+  if (std::memcmp(magic, kMagic, sizeof(kMagic)) != 0) r.fail("not a radslam tracker checkpoint");
+  const uint32_t format = r.get<uint32_t>();
+  if (format != kFormat)
+    r.fail("format " + std::to_string(format) + ", this build reads " + std::to_string(kFormat));
+  const StateOptions ours(params_, mode_);
+  StateOptions saved;
+  saved.read(&r);
+  if (!(saved == ours))
+    r.fail("written with " + saved.describe() + "; this tracker runs " + ours.describe());
+  // Everything is read into a fresh state first: a bad file leaves this tracker unchanged.
+  auto s = std::make_unique<Impl>(params_, mode_);
+  if (r.get<uint8_t>()) {
+    try {
+      s->setUpCamera(s->makePreparer(readCamera(&r)));
+    } catch (const std::invalid_argument& e) {
+      r.fail(std::string("camera: ") + e.what());
+    }
+  }
+  s->baseline_m = r.get<double>();
+  s->ba_ran = r.get<uint8_t>() != 0;
+  s->first_ba_done = r.get<uint8_t>() != 0;
+  s->lost_streak = r.get<int32_t>();
+  s->stats = r.get<TrackerStats>();
+  s->frames.resize(r.count(64));
+  for (FrameRecord& f : s->frames) {
+    f.header = r.header();
+    f.frame_index = r.get<int64_t>();
+    f.ref_kf = r.get<int32_t>();
+    f.T_kf_frame = r.se3();
+    r.matrix(&f.cov_rel);
+    f.state = r.get<TrackingState>();
+    f.is_keyframe = r.get<uint8_t>() != 0;
+  }
+  s->pending_frames.resize(r.count(16));
+  for (Impl::PendingFrame& f : s->pending_frames) {
+    f.record = r.get<uint64_t>();
+    if (f.record >= s->frames.size()) r.fail("pending frame out of range");
+    f.target = r.mat();
+    f.weight = r.mat();
+  }
+  s->graph.load(&r);
+  for (const FrameRecord& f : s->frames)
+    if (f.ref_kf < 0 || f.ref_kf >= s->graph.size()) r.fail("frame with an unknown keyframe");
+  if ((r.get<uint8_t>() != 0) != (s->objects != nullptr)) r.fail("object tracker state mismatch");
+  if (s->objects) s->objects->load(&r);
+  if ((r.get<uint8_t>() != 0) != (s->segmenter != nullptr)) r.fail("segmenter state mismatch");
+  if (s->segmenter) s->segmenter->load(&r);
+  if (!r.done()) r.fail("trailing bytes");
+  impl_ = std::move(s);
+}
+
+int64_t Tracker::lastFrameIndex() const {
+  return impl_->frames.empty() ? -1 : impl_->frames.back().frame_index;
+}
+
+}  // namespace radslam
