@@ -1,6 +1,6 @@
 // Writes the seed corpora of the fuzz targets: valid encoded messages (raw, PNG
 // and JPEG images), valid dataset files (dataset_layouts.h), an LCM log holding
-// a few messages and viewer queries. Usage: radslam_fuzz_seeds OUT_DIR
+// a few messages, viewer queries and a tracker checkpoint. Usage: radslam_fuzz_seeds OUT_DIR
 // (one folder per target below OUT_DIR, named as the target without its prefix).
 #include <cstdint>
 #include <cstdio>
@@ -16,6 +16,7 @@
 #include "common/lcm_log.h"
 #include "common/types.h"
 #include "fuzz/dataset_layouts.h"
+#include "fuzz/tracker_sequence.h"
 #include "mapper/field_io.h"
 
 namespace {
@@ -208,6 +209,14 @@ void writeLogSeed(const fs::path& out) {
   writer.write(200, "X", bytes.data(), 1);
 }
 
+// A checkpoint of the tracker that the fuzz target resumes (fuzz/tracker_sequence.h).
+void writeTrackerCheckpointSeed(const fs::path& out) {
+  fs::create_directories(out / "tracker_checkpoint");
+  Tracker tracker(fuzz::trackerParams());
+  for (int i = 0; i < fuzz::kCheckpointFrames; ++i) tracker.process(fuzz::trackerSequence()[i]);
+  tracker.saveCheckpoint((out / "tracker_checkpoint" / "after_8_frames").string());
+}
+
 void writeViewerSeeds(const fs::path& out) {
   const fs::path dir = out / "viewer_query";
   writeSeed(dir, "color", "pose=0,0,0,0,0,0,1&w=64&h=48&fx=50");
@@ -229,6 +238,7 @@ int main(int argc, char** argv) {
     writeDatasetSeeds(out);
     writeLogSeed(out);
     writeViewerSeeds(out);
+    writeTrackerCheckpointSeed(out);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "radslam_fuzz_seeds: %s\n", e.what());
     return 1;

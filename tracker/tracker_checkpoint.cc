@@ -7,6 +7,7 @@
 //   u32 pending frames, each: frame record and its correspondences
 //   the keyframe graph (KeyframeGraph::save), the object tracker and the motion segmenter
 #include <cstring>
+#include <initializer_list>
 #include <stdexcept>
 #include <string>
 #include <tuple>
@@ -76,6 +77,68 @@ CameraModel readCamera(BinaryReader* r) {
   return c;
 }
 
+/// Empty, or of this size and one of these types.
+bool imageFits(const cv::Mat& m, cv::Size size, std::initializer_list<int> types) {
+  if (m.empty()) return true;
+  if (m.size() != size) return false;
+  for (int t : types)
+    if (m.type() == t) return true;
+  return false;
+}
+
+/// The images of a loaded state have the sizes and types the tracker works with (a file that
+/// passes the reader's own checks may still hold images of another size: they would break
+/// the next frame, not the load). Returns what is wrong, or "".
+std::string checkImages(const KeyframeGraph& graph, const std::vector<PendingFrame>& pending,
+                        const GridGeometry& g) {
+  const cv::Size work = g.workingSize(), grid = g.gridSize();
+  for (const KeyframeData& k : graph.all()) {
+    struct Expected {
+      const char* name;
+      const cv::Mat& image;
+      cv::Size size;
+      std::initializer_list<int> types;
+    };
+    const Expected expected[] = {
+        {"colour", k.color, work, {CV_8UC1, CV_8UC3}},
+        {"grey", k.grey, work, {CV_8UC1}},
+        {"gradients", k.gradients, work, {CV_32FC2}},
+        {"right image", k.right_grey, work, {CV_8UC1}},
+        {"moving mask", k.moving, work, {CV_8UC1}},
+        {"depth", k.depth, work, {CV_32FC1}},
+        {"structure tensor", k.structure, grid, {CV_32FC3}},
+        {"inverse depth", k.ba.inv_depth, grid, {CV_32FC1}},
+        {"inverse-depth prior", k.ba.prior_inv_depth, grid, {CV_32FC1}},
+        {"inverse-depth prior variance", k.ba.prior_inv_depth_var, grid, {CV_32FC1}},
+        {"sensor inverse depth", k.sensor_inv_depth, grid, {CV_32FC1}},
+        {"sensor inverse-depth variance", k.sensor_inv_depth_var, grid, {CV_32FC1}},
+        {"inverse-depth variance", k.inv_depth_var, grid, {CV_32FC1}},
+        {"inverse depth sent", k.sent_inv_depth, grid, {CV_32FC1}},
+        {"stereo targets", k.stereo_target, grid, {CV_32FC2}},
+        {"stereo weights", k.stereo_weight, grid, {CV_32FC2}},
+    };
+    for (const Expected& e : expected)
+      if (!imageFits(e.image, e.size, e.types))
+        return "keyframe " + std::to_string(k.id) + ": " + e.name + " of a wrong size or type";
+    const bool paired = k.grey.empty() == k.structure.empty() &&
+                        k.ba.prior_inv_depth.empty() == k.ba.prior_inv_depth_var.empty() &&
+                        k.sensor_inv_depth.empty() == k.sensor_inv_depth_var.empty() &&
+                        k.stereo_target.empty() == k.stereo_weight.empty();
+    if (!paired || k.ba.inv_depth.empty())
+      return "keyframe " + std::to_string(k.id) + ": images missing";
+  }
+  for (int id : graph.windowIds())
+    if (graph.keyframe(id).grey.empty() || graph.keyframe(id).gradients.empty() ||
+        !graph.keyframe(id).in_window)
+      return "window keyframe " + std::to_string(id) + " without its image";
+  for (const PendingFrame& f : pending) {
+    if (f.target.size() != grid || f.weight.size() != grid || f.target.type() != CV_32FC2 ||
+        f.weight.type() != CV_32FC2)
+      return "pending frame with correspondences of a wrong size";
+  }
+  return "";
+}
+
 }  // namespace
 
 void Tracker::saveCheckpoint(const std::string& path) const {
@@ -102,7 +165,7 @@ void Tracker::saveCheckpoint(const std::string& path) const {
     w.put<uint8_t>(f.is_keyframe);
   }
   w.put<uint32_t>(s.pending_frames.size());
-  for (const Impl::PendingFrame& f : s.pending_frames) {
+  for (const PendingFrame& f : s.pending_frames) {
     w.put<uint64_t>(f.record);
     w.mat(f.target);
     w.mat(f.weight);
@@ -153,7 +216,7 @@ void Tracker::loadCheckpoint(const std::string& path) {
     f.is_keyframe = r.get<uint8_t>() != 0;
   }
   s->pending_frames.resize(r.count(16));
-  for (Impl::PendingFrame& f : s->pending_frames) {
+  for (PendingFrame& f : s->pending_frames) {
     f.record = r.get<uint64_t>();
     if (f.record >= s->frames.size()) r.fail("pending frame out of range");
     f.target = r.mat();
@@ -162,6 +225,13 @@ void Tracker::loadCheckpoint(const std::string& path) {
   s->graph.load(&r);
   for (const FrameRecord& f : s->frames)
     if (f.ref_kf < 0 || f.ref_kf >= s->graph.size()) r.fail("frame with an unknown keyframe");
+  if (!s->preparer && (!s->graph.empty() || !s->frames.empty())) r.fail("frames without a camera");
+  if (s->preparer) {
+    const std::string wrong = checkImages(s->graph, s->pending_frames, s->preparer->geometry());
+    if (!wrong.empty()) r.fail(wrong);
+  }
+  if (!s->graph.empty() && (s->graph.windowIds().empty() || s->frames.empty()))
+    r.fail("keyframes without a window or frames");
   if ((r.get<uint8_t>() != 0) != (s->objects != nullptr)) r.fail("object tracker state mismatch");
   if (s->objects) s->objects->load(&r);
   if ((r.get<uint8_t>() != 0) != (s->segmenter != nullptr)) r.fail("segmenter state mismatch");

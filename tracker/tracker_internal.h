@@ -28,6 +28,13 @@ struct FrameRecord {
 /// Covariance of T_world_frame = T_world_kf T_kf_frame from the keyframe's covariance and the
 /// relative one (independent): a right perturbation of T_world_kf moves the frame by
 /// Ad(T_frame_kf) delta.
+/// A frame aligned again later (Tracker::Impl::pending_frames): its record and its grid
+/// correspondences to its keyframe.
+struct PendingFrame {
+  size_t record = 0;  // index into Tracker::Impl::frames
+  cv::Mat target, weight;
+};
+
 inline Mat6 composeCovariance(const Mat6& cov_kf, const SE3& T_kf_frame, const Mat6& cov_rel) {
   const Mat6 Ad = T_kf_frame.inverse().adjoint();
   return Ad * cov_kf * Ad.transpose() + cov_rel;
@@ -119,10 +126,6 @@ struct Tracker::Impl {
   /// constant depths). Their correspondences are kept and they are aligned again after the
   /// first BA, when their keyframe leaves the window (its estimate is final then) and in
   /// finish(): memory stays bounded by the window.
-  struct PendingFrame {
-    size_t record = 0;  // index into frames
-    cv::Mat target, weight;
-  };
   std::vector<PendingFrame> pending_frames;
   /// Moving objects: null until the first frame (it needs the working camera) or when
   /// dynamic_objects is off. moving: the frame's mask (working size, 255 = moving object;
