@@ -21,6 +21,7 @@
 #include "tracker/object_tracking.h"
 #include "tracker/object_window_ba.h"
 #include "tracker/tracker.h"
+#include "tracker/tracker_node.h"
 
 namespace radslam {
 namespace {
@@ -45,6 +46,7 @@ const char* kUsage = R"(usage: radslam-bench-dynamic [options]
   --segmentation-only  with --pipeline: only the run with masks withheld (its ATE and IoU)
   --mask-dir DIR     with --pipeline: write each frame's true and segmented moving masks there
                      (DIR/<scene>-<mode>-<frame>.png: true in red, segmented in green)
+  --set KEY=VALUE    with --pipeline: override tracker parameters (comma-separated)
 )";
 
 constexpr double kDeg = 180.0 / M_PI;
@@ -322,7 +324,7 @@ PipelineRun runTracker(const SyntheticScene& scene, const std::vector<Frame>& fr
 }
 
 int runPipeline(const std::vector<std::string>& scenes, int frames, int width, double fps,
-                bool segmentation_only, const std::string& mask_dir) {
+                bool segmentation_only, const std::string& mask_dir, const TrackerParams& base) {
   std::printf(
       "whole tracker, %d frames %dx%d with sensor noise (colour sigma 2, depth 0.0015 z^2); "
       "camera ATE (SE3, m);\nobject motion error per frame (mean t m / r deg) of the tracker's "
@@ -360,7 +362,7 @@ int runPipeline(const std::vector<std::string>& scenes, int frames, int width, d
       free_classes += (free_classes.empty() ? "" : ",") + std::to_string(c.id) + ":free";
     }
     for (const char* mode : {"rgbd", "stereo"}) {
-      TrackerParams with;
+      TrackerParams with = base;
       with.mode = mode;
       TrackerParams without = with;
       without.dynamic_objects = false;
@@ -415,6 +417,7 @@ int run(int argc, char** argv) {
   const double fps = cli.getDouble("fps", 0);
   const bool segmentation_only = cli.getBool("segmentation-only", false);
   const std::string mask_dir = cli.get("mask-dir", "");
+  const std::string set = cli.get("set", "");
   ObjectNoise noise;
   noise.pixel_sigma = cli.getDouble("pixel-sigma", 1.0);
   noise.depth_sigma_rel = cli.getDouble("depth-noise", 0.002);
@@ -429,7 +432,14 @@ int run(int argc, char** argv) {
         "need frames >= 2, width >= 32, stride >= 1, window >= 2, pixel-sigma > 0, "
         "depth-noise > 0, 0 <= outliers < 1");
 
-  if (pipeline) return runPipeline(scenes, frames, width, fps, segmentation_only, mask_dir);
+  if (pipeline) {
+    std::vector<std::string> overrides;
+    std::stringstream items(set);
+    for (std::string item; std::getline(items, item, ',');)
+      if (!item.empty()) overrides.push_back(item);
+    return runPipeline(scenes, frames, width, fps, segmentation_only, mask_dir,
+                       loadTrackerParams("", overrides));
+  }
   std::printf(
       "object motion error per frame, mean over frame pairs: translation m, rotation deg\n");
   std::printf("%-6s %-4s %-6s %-8s %5s | %16s | %16s | %16s | %5s | %s\n", "scene", "id", "class",

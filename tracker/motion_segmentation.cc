@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <map>
 #include <stdexcept>
 #include <vector>
@@ -17,12 +18,72 @@ MotionSegmenter::MotionSegmenter(const MotionSegmentationParams& params)
   if (!(params.min_residual_px > 0) || !(params.depth_sigmas >= 0) ||
       !(params.relative_residual >= 0) || params.min_object_pixels < 1 || params.close_px < 0 ||
       !(params.min_overlap > 0 && params.min_overlap <= 1) || params.first_id < 1 ||
-      params.first_id > 65000 || !(params.depth_test_sigmas > 0)) {
+      params.first_id > 65000 || !(params.depth_test_sigmas > 0) ||
+      !(params.photometric_margin >= 0)) {
     throw std::invalid_argument(
         "motion segmentation: need min_residual_px > 0, depth_sigmas >= 0, relative_residual >= 0, "
         "min_object_pixels >= 1, close_px >= 0, min_overlap in (0, 1], first_id in [1, 65000], "
-        "depth_test_sigmas > 0");
+        "depth_test_sigmas > 0, photometric_margin >= 0");
   }
+}
+
+cv::Mat staticFlowFromDepth(const cv::Mat& depth_a, const SE3& T_b_a, const CameraModel& camera,
+                            const cv::Mat& fallback) {
+  const cv::Size size(camera.width, camera.height);
+  CV_Assert(depth_a.type() == CV_32FC1 && depth_a.size() == size && fallback.type() == CV_32FC2 &&
+            fallback.size() == size);
+  cv::Mat flow = fallback.clone();
+  for (int y = 0; y < size.height; ++y) {
+    const float* z = depth_a.ptr<float>(y);
+    cv::Vec2f* f = flow.ptr<cv::Vec2f>(y);
+    for (int x = 0; x < size.width; ++x) {
+      if (!(z[x] > 0) || !std::isfinite(z[x])) continue;
+      const Vec3 p_b = T_b_a * unproject(camera, Eigen::Vector2d(x, y), z[x]);
+      if (!(p_b.z() > 1e-3)) continue;
+      const Eigen::Vector2d px = project(camera, p_b);
+      f[x] = cv::Vec2f(static_cast<float>(px.x() - x), static_cast<float>(px.y() - y));
+    }
+  }
+  return flow;
+}
+
+cv::Mat photometricPreference(const cv::Mat& grey_a, const cv::Mat& grey_b, const cv::Mat& measured,
+                              const cv::Mat& predicted, int radius) {
+  CV_Assert(grey_a.type() == CV_8UC1 && grey_b.type() == CV_8UC1 && grey_a.size() == grey_b.size());
+  CV_Assert(measured.type() == CV_32FC2 && predicted.type() == CV_32FC2 &&
+            measured.size() == grey_a.size() && predicted.size() == grey_a.size());
+  const float kNaN = std::numeric_limits<float>::quiet_NaN();
+  cv::Mat a, b;
+  grey_a.convertTo(a, CV_32F);
+  grey_b.convertTo(b, CV_32F);
+  // |b(x + flow) - a(x)|, NaN where x + flow is outside b or the flow is unknown.
+  const auto error = [&](const cv::Mat& flow) {
+    cv::Mat map(flow.size(), CV_32FC2);
+    for (int y = 0; y < flow.rows; ++y) {
+      const cv::Vec2f* f = flow.ptr<cv::Vec2f>(y);
+      cv::Vec2f* m = map.ptr<cv::Vec2f>(y);
+      for (int x = 0; x < flow.cols; ++x) {
+        const bool known = std::isfinite(f[x][0]) && std::isfinite(f[x][1]);
+        m[x] = known ? cv::Vec2f(x + f[x][0], y + f[x][1]) : cv::Vec2f(-1e4f, -1e4f);  // outside
+      }
+    }
+    cv::Mat warped;
+    cv::remap(b, warped, map, cv::noArray(), cv::INTER_LINEAR, cv::BORDER_CONSTANT,
+              cv::Scalar(kNaN));
+    return cv::Mat(cv::abs(warped - a));
+  };
+  const cv::Mat difference = error(predicted) - error(measured);
+  cv::Mat valid = difference == difference;  // not NaN
+  cv::Mat sum = difference.clone();
+  sum.setTo(0, ~valid);
+  cv::Mat count;
+  valid.convertTo(count, CV_32F, 1.0 / 255);
+  const cv::Size window(2 * radius + 1, 2 * radius + 1);
+  cv::boxFilter(sum, sum, CV_32F, window, cv::Point(-1, -1), false);
+  cv::boxFilter(count, count, CV_32F, window, cv::Point(-1, -1), false);
+  cv::Mat mean = sum / count;  // NaN where count is 0
+  mean.setTo(kNaN, count < 0.5f);
+  return mean;
 }
 
 cv::Mat depthDisagreement(const cv::Mat& depth_a, const cv::Mat& depth_b, const cv::Mat& grey_a,
@@ -83,13 +144,17 @@ cv::Mat depthDisagreement(const cv::Mat& depth_a, const cv::Mat& depth_b, const 
 }
 
 cv::Mat MotionSegmenter::segment(const cv::Mat& measured, const cv::Mat& predicted,
-                                 const cv::Mat& depth_flow, const cv::Mat& depth_test) {
+                                 const cv::Mat& depth_flow, const cv::Mat& depth_test,
+                                 const cv::Mat& photo_test) {
   CV_Assert(measured.type() == CV_32FC2 && predicted.type() == CV_32FC2 &&
             measured.size() == predicted.size());
   CV_Assert(depth_flow.empty() ||
             (depth_flow.type() == CV_32FC1 && depth_flow.size() == measured.size()));
   CV_Assert(depth_test.empty() ||
             (depth_test.type() == CV_32FC1 && depth_test.size() == measured.size()));
+  CV_Assert(photo_test.empty() ||
+            (photo_test.type() == CV_32FC1 && photo_test.size() == measured.size()));
+  const float photo_margin = static_cast<float>(params_.photometric_margin);
   const float depth_z_max = static_cast<float>(params_.depth_test_sigmas);
   const int W = measured.cols, H = measured.rows;
   const float min_r = static_cast<float>(params_.min_residual_px);
@@ -102,12 +167,15 @@ cv::Mat MotionSegmenter::segment(const cv::Mat& measured, const cv::Mat& predict
     const cv::Vec2f* p = predicted.ptr<cv::Vec2f>(y);
     const float* d = depth_flow.empty() ? nullptr : depth_flow.ptr<float>(y);
     const float* z = depth_test.empty() ? nullptr : depth_test.ptr<float>(y);
+    const float* photo = photo_test.empty() ? nullptr : photo_test.ptr<float>(y);
     for (int x = 0; x < W; ++x) {
       if (z && std::abs(z[x]) > depth_z_max) moving_a.at<uint8_t>(y, x) = 255;
       const float du = m[x][0] - p[x][0], dv = m[x][1] - p[x][1];
       const float tolerance =
           min_r + relative * std::hypot(p[x][0], p[x][1]) + (d ? sigmas * d[x] : 0.f);
-      if (du * du + dv * dv > tolerance * tolerance) moving_a.at<uint8_t>(y, x) = 255;  // not NaN
+      const bool photo_ok = !photo || !(photo[x] <= photo_margin);  // NaN: not judged
+      if (du * du + dv * dv > tolerance * tolerance && photo_ok)    // false for NaN
+        moving_a.at<uint8_t>(y, x) = 255;
     }
   }
   // Moving pixels of a, carried into b along their measured flow.
@@ -168,9 +236,10 @@ void MotionSegmenter::save(BinaryWriter* out) const {
   out->put<int32_t>(next_id_);
 }
 
-void MotionSegmenter::load(BinaryReader* in) {
+void MotionSegmenter::load(BinaryReader* in, cv::Size size) {
   cv::Mat previous = in->mat();
-  if (!previous.empty() && previous.type() != CV_16UC1) in->fail("bad segmentation mask");
+  if (!previous.empty() && (previous.type() != CV_16UC1 || previous.size() != size))
+    in->fail("bad segmentation mask");
   const int next_id = in->get<int32_t>();
   if (next_id < params_.first_id) in->fail("bad segmentation id");
   previous_ = previous;

@@ -34,6 +34,9 @@ struct MotionSegmentationParams {
   double min_overlap = 0.3;        // IoU with a previous component to keep its id
   int first_id = 200;              // instance ids handed out from here on (0 = static)
   double depth_test_sigmas = 4.0;  // |depth disagreement| (z-score) that makes a pixel move
+  /// With a photometric test (photometricPreference): a pixel moves by its flow only where the
+  /// static prediction matches b worse than the measured flow by more than this (grey levels).
+  double photometric_margin = 4.0;
 };
 
 class MotionSegmenter {
@@ -46,16 +49,20 @@ class MotionSegmenter {
   /// for a one-sigma error of a's depth (+inf: unknown depth). Returns b's instance mask
   /// (CV_16UC1, a's size, 0 = static): one id per moving object, stable across calls.
   /// depth_test (CV_32FC1, a's size, optional, NaN: not judged): depthDisagreement below;
-  /// pixels beyond depth_test_sigmas move too.
+  /// pixels beyond depth_test_sigmas move too. photo_test (CV_32FC1, a's size, optional, NaN:
+  /// not judged): photometricPreference below; a pixel whose flow disagrees moves only when
+  /// the static prediction is photometrically worse by photometric_margin (a flow that failed,
+  /// at occlusions, thin structures or long flows on the ground, matches b no better).
   cv::Mat segment(const cv::Mat& measured, const cv::Mat& predicted, const cv::Mat& depth_flow = {},
-                  const cv::Mat& depth_test = {});
+                  const cv::Mat& depth_test = {}, const cv::Mat& photo_test = {});
 
   /// Forgets the previous frame's components (ids are not reused).
   void reset() { previous_.release(); }
 
-  /// The state carried from frame to frame (tracker checkpoints); load() replaces it.
+  /// The state carried from frame to frame (tracker checkpoints); load() replaces it, its mask
+  /// must be empty or of `size` (the flows').
   void save(BinaryWriter* out) const;
-  void load(BinaryReader* in);
+  void load(BinaryReader* in, cv::Size size);
 
  private:
   MotionSegmentationParams params_;
@@ -76,6 +83,23 @@ class MotionSegmenter {
 /// more than max_grey_error from a's (the flow landed on another surface: thin poles,
 /// occlusions). depth_a, depth_b CV_32FC1 (m, 0 = invalid), grey_a, grey_b CV_8UC1, flow
 /// CV_32FC2 a -> b, all of camera's size.
+/// The flow a -> b (CV_32FC2 working px, a's size) the static scene makes where a's depth is
+/// measured (depth_a CV_32FC1 m, 0 = unknown; RGB-D sensor or stereo): thin structures keep
+/// their own depth, which the BA grid blends with what is behind them. `fallback` (the grid's
+/// prediction, same type and size) where a has no depth or the point falls behind b.
+cv::Mat staticFlowFromDepth(const cv::Mat& depth_a, const SE3& T_b_a, const CameraModel& camera,
+                            const cv::Mat& fallback);
+
+/// How much worse the static prediction explains b than the measured flow does, per pixel of a
+/// (grey levels): the mean over a (2 radius + 1)^2 window of |b(x + predicted) - a(x)| minus
+/// |b(x + measured) - a(x)|, bilinear in b. Positive where the pixel moved by itself (its
+/// measured flow finds it, the static prediction lands elsewhere); near zero or negative where
+/// the measured flow is wrong or both agree. CV_32FC1, a's size; NaN where no pixel of the
+/// window has both ends inside b. grey_a, grey_b CV_8UC1; flows CV_32FC2 a -> b (working px,
+/// predicted NaN where a has no depth).
+cv::Mat photometricPreference(const cv::Mat& grey_a, const cv::Mat& grey_b, const cv::Mat& measured,
+                              const cv::Mat& predicted, int radius = 2);
+
 cv::Mat depthDisagreement(const cv::Mat& depth_a, const cv::Mat& depth_b, const cv::Mat& grey_a,
                           const cv::Mat& grey_b, const cv::Mat& flow, const cv::Mat& depth_flow,
                           const SE3& T_b_a, const CameraModel& camera, double sigma_a,

@@ -309,13 +309,14 @@ ObjectList ObjectTracker::track(const ObjectFrame& frame) {
           camera_, previous_.depth, previous_.instance, id, flow, params_.stride);
       // Points whose flow lands off the object (occlusion, flow bleeding over the silhouette)
       // would pull it towards the background; far points are too noisy.
+      const int instance_id = id;  // (a structured binding cannot be captured in C++17)
       c.erase(std::remove_if(c.begin(), c.end(),
                              [&](const ObjectCorrespondence& m) {
                                if (m.p_cam0.z() > params_.max_depth_m) return true;
                                const int x = static_cast<int>(std::lround(m.px1.x()));
                                const int y = static_cast<int>(std::lround(m.px1.y()));
                                return x < 0 || y < 0 || x >= camera_.width || y >= camera_.height ||
-                                      frame.instance.at<uint16_t>(y, x) != id;
+                                      frame.instance.at<uint16_t>(y, x) != instance_id;
                              }),
               c.end());
       if (static_cast<int>(c.size()) >= params_.min_points) {
@@ -456,6 +457,14 @@ void ObjectTracker::load(BinaryReader* in) {
   for (cv::Mat* m : {&previous.grey, &previous.depth, &previous.instance, &previous.class_id})
     *m = r.mat();
   previous.T_world_cam = r.se3();
+  const cv::Size size(camera_.width, camera_.height);
+  const auto fits = [&](const cv::Mat& m, int type) {
+    return m.empty() || (m.size() == size && m.type() == type);
+  };
+  if (!fits(previous.grey, CV_8UC1) || !fits(previous.depth, CV_32FC1) ||
+      !fits(previous.instance, CV_16UC1) || !fits(previous.class_id, CV_16UC1) ||
+      (has_previous && previous.grey.empty()))
+    r.fail("object tracker: previous frame's images of a wrong size or type");
   objects_ = std::move(objects);
   has_previous_ = has_previous;
   previous_ = std::move(previous);

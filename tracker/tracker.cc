@@ -131,6 +131,7 @@ void Tracker::Impl::setUpCamera(std::unique_ptr<ImagePreparer> first_preparer) {
     object_params.classes.push_back(DynamicClass{p.motion_class_id, JointType::kFree, -1});
     MotionSegmentationParams segmentation;
     segmentation.min_residual_px = p.motion_residual_px;
+    segmentation.photometric_margin = p.motion_photometric_margin;
     segmentation.min_object_pixels = p.motion_min_pixels;
     segmenter = std::make_unique<MotionSegmenter>(segmentation);
   }
@@ -340,7 +341,8 @@ void Tracker::Impl::track(const Frame& frame, const PreparedImage& image, Tracke
     return;
   }
   lost_streak = 0;
-  if (segmenter && image.class_id.empty()) segmentMotion(ref, image, &tracked, &aligned);
+  if (segmenter && image.class_id.empty())
+    segmentMotion(ref, frame.frame_index, image, &tracked, &aligned);
 
   const Mat3 R_frame_kf = (aligned.T_world_frame.inverse() * ref.ba.T_world_cam).rotation();
   const FlowMotion motion = measureFlowMotion(c.target, c.weight, g.grid, R_frame_kf);
@@ -379,21 +381,38 @@ void Tracker::Impl::track(const Frame& frame, const PreparedImage& image, Tracke
   out->pose = poseMessage(r);
 }
 
-void Tracker::Impl::segmentMotion(const KeyframeData& ref, const PreparedImage& image,
-                                  TrackedFlow* tracked, MotionOnlyResult* aligned) {
+void Tracker::Impl::segmentMotion(const KeyframeData& ref, int64_t frame_index,
+                                  const PreparedImage& image, TrackedFlow* tracked,
+                                  MotionOnlyResult* aligned) {
   const GridGeometry& g = preparer->geometry();
   constexpr float kInf = std::numeric_limits<float>::infinity();
+  // Motion is judged against a keyframe at least motion_min_keyframe_age frames old: against
+  // one made a frame ago a moving object has barely moved (the car at 30 Hz went undetected
+  // on every frame after a new keyframe). Then the flow from it is measured too.
+  const KeyframeData* judge = &ref;
+  for (int id : graph.windowIds()) {
+    const KeyframeData& k = graph.keyframe(id);
+    if (frame_index - k.frame_index >= p.motion_min_keyframe_age) judge = &k;  // newest such
+  }
+  cv::Mat forward = tracked->forward, backward = tracked->backward;
+  if (judge != &ref) {
+    const cv::Mat init = predictedFlow(
+        reprojectKeyframe(g.grid, judge->ba, aligned->T_world_frame, p.min_depth_ratio), g);
+    forward = flow.compute(judge->grey, image.grey, init, frame_warm_start);
+    backward = cv::Mat();
+  }
+  const KeyframeData& a = *judge;
   // Only flow the front end trusts is judged: occlusions and mismatches disagree with the
   // static prediction too. The confidence without masks: the keyframe's own mask must not hide
   // an object that still moves.
-  const Correspondences unmasked = flowToCorrespondences(
-      ref.grey, image.grey, tracked->forward, tracked->backward, ref.structure, g, flow_options);
-  const cv::Mat& var = ref.inv_depth_var.empty() ? ref.ba.prior_inv_depth_var : ref.inv_depth_var;
+  const Correspondences unmasked =
+      flowToCorrespondences(a.grey, image.grey, forward, backward, a.structure, g, flow_options);
+  const cv::Mat& var = a.inv_depth_var.empty() ? a.ba.prior_inv_depth_var : a.inv_depth_var;
   cv::Mat sigma;
   cv::sqrt(cv::max(var, 0.0), sigma);
-  DenseBaKeyframe shifted = ref.ba;
+  DenseBaKeyframe shifted = a.ba;
   shifted.inv_depth = cv::Mat();  // (a new buffer: the copy shares the keyframe's)
-  cv::add(ref.ba.inv_depth, sigma, shifted.inv_depth);
+  cv::add(a.ba.inv_depth, sigma, shifted.inv_depth);
   // The depth test's noise model; stereo: sigma_z = a + z^2 sigma_disparity / (fx baseline).
   const cv::Mat& depth = frameDepth(image);
   const bool stereo = mode == TrackerMode::kStereo;
@@ -404,7 +423,7 @@ void Tracker::Impl::segmentMotion(const KeyframeData& ref, const PreparedImage& 
   // again at the pose re-aligned without the object.
   for (int round = 0; round < p.motion_rounds; ++round) {
     const cv::Mat targets =
-        reprojectKeyframe(g.grid, ref.ba, aligned->T_world_frame, p.min_depth_ratio);
+        reprojectKeyframe(g.grid, a.ba, aligned->T_world_frame, p.min_depth_ratio);
     // The flow change a one-sigma inverse-depth error of the keyframe makes (working px);
     // infinite (not judged) without depth or without a trusted flow.
     const cv::Mat targets_shifted =
@@ -424,23 +443,32 @@ void Tracker::Impl::segmentMotion(const KeyframeData& ref, const PreparedImage& 
     cv::Mat depth_flow;
     cv::resize(depth_flow_grid, depth_flow, g.workingSize(), 0, 0, cv::INTER_NEAREST);
     const cv::Mat depth_test =
-        ref.depth.empty() || depth.empty()
+        a.depth.empty() || depth.empty()
             ? cv::Mat()
-            : depthDisagreement(ref.depth, depth, ref.grey, image.grey, tracked->forward,
-                                depth_flow, aligned->T_world_frame.inverse() * ref.ba.T_world_cam,
-                                g.working, p.depth_sigma_a, depth_sigma_b, depth_sigma_z0);
+            : depthDisagreement(a.depth, depth, a.grey, image.grey, forward, depth_flow,
+                                aligned->T_world_frame.inverse() * a.ba.T_world_cam, g.working,
+                                p.depth_sigma_a, depth_sigma_b, depth_sigma_z0);
     // Most of the image disagreeing means the pose is wrong, not that the scene moves.
     const auto too_much = [&](const cv::Mat& instance) {
       return cv::countNonZero(instance) > p.motion_max_fraction * instance.total();
     };
-    const cv::Mat predicted = predictedFlow(targets, g);
+    // The prediction at full resolution where the keyframe has measured depth.
+    const cv::Mat grid_predicted = predictedFlow(targets, g);
+    const cv::Mat predicted =
+        a.depth.empty()
+            ? grid_predicted
+            : staticFlowFromDepth(a.depth, aligned->T_world_frame.inverse() * a.ba.T_world_cam,
+                                  g.working, grid_predicted);
+    const cv::Mat photo_test = p.motion_photometric_margin > 0
+                                   ? photometricPreference(a.grey, image.grey, forward, predicted)
+                                   : cv::Mat();
     const MotionSegmenter before = *segmenter;
-    cv::Mat instance = segmenter->segment(tracked->forward, predicted, depth_flow, depth_test);
+    cv::Mat instance = segmenter->segment(forward, predicted, depth_flow, depth_test, photo_test);
     if (!depth_test.empty() && too_much(instance)) {
       // A pose that followed a large object makes the static scene disagree in depth nearly
       // everywhere (synthetic truck: 14.6 m ATE); then flow alone judges this round.
       *segmenter = before;
-      instance = segmenter->segment(tracked->forward, predicted, depth_flow);
+      instance = segmenter->segment(forward, predicted, depth_flow, {}, photo_test);
     }
     if (too_much(instance)) return;
     const cv::Mat any = instance > 0;

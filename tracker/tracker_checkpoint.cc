@@ -235,7 +235,7 @@ void Tracker::loadCheckpoint(const std::string& path) {
   if ((r.get<uint8_t>() != 0) != (s->objects != nullptr)) r.fail("object tracker state mismatch");
   if (s->objects) s->objects->load(&r);
   if ((r.get<uint8_t>() != 0) != (s->segmenter != nullptr)) r.fail("segmenter state mismatch");
-  if (s->segmenter) s->segmenter->load(&r);
+  if (s->segmenter) s->segmenter->load(&r, s->preparer->geometry().workingSize());
   if (!r.done()) r.fail("trailing bytes");
   impl_ = std::move(s);
 }

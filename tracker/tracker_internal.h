@@ -143,8 +143,8 @@ struct Tracker::Impl {
   const cv::Mat& frameDepth(const PreparedImage& image);
   /// Segments the frame's moving pixels from its flow to the reference keyframe; where some
   /// move, their correspondences are measured again without them and the frame re-aligned.
-  void segmentMotion(const KeyframeData& ref, const PreparedImage& image, TrackedFlow* tracked,
-                     MotionOnlyResult* aligned);
+  void segmentMotion(const KeyframeData& ref, int64_t frame_index, const PreparedImage& image,
+                     TrackedFlow* tracked, MotionOnlyResult* aligned);
   /// The frame's objects from its depth (sensor or stereo) and its final pose.
   ObjectList trackObjects(const Frame& frame, const PreparedImage& image, const SE3& T_world_cam);
   /// Aligns the pending frames again; with `leaving`, only those of these keyframes, which are

@@ -5,6 +5,7 @@
 
 #include <gtest/gtest.h>
 #include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
 
 namespace radslam {
 namespace {
@@ -60,6 +61,44 @@ TEST(MotionSegmenter, StaticSceneHasNoObjects) {
   Flows f = makeFlows(40);
   f.measured = f.predicted.clone();
   EXPECT_EQ(cv::countNonZero(segmenter.segment(f.measured, f.predicted, f.depth_flow)), 0);
+}
+
+// A textured image whose content moves 3 px right (the static scene) except a 40 x 40 object
+// that stays put. Measured flows: right on the object, and a failed flow (random, as at a thin
+// pole or on a long flow) on a 30 x 30 static patch. The photometric test keeps the object and
+// drops the failed patch, which the flow residual alone takes for a second object.
+TEST(MotionSegmenter, PhotometricTestKeepsObjectsAndDropsFailedFlow) {
+  cv::Mat texture(120, 160, CV_8UC1);
+  cv::randu(texture, 0, 255);
+  cv::GaussianBlur(texture, texture, cv::Size(0, 0), 1.5);
+  cv::Mat b(texture.size(), CV_8UC1);
+  const cv::Mat shift = (cv::Mat_<double>(2, 3) << 1, 0, 3, 0, 1, 0);
+  cv::warpAffine(texture, b, shift, b.size(), cv::INTER_LINEAR, cv::BORDER_REFLECT);
+  const cv::Rect object(40, 50, 40, 40), failed(110, 20, 30, 30);
+  texture(object).copyTo(b(object));
+  Flows f = makeFlows(object.x);
+  cv::Mat noise(failed.size(), CV_32FC2);
+  cv::randu(noise, -4, 4);
+  f.measured(failed) += noise;
+  f.measured(failed) += cv::Scalar(0, 5);
+
+  const cv::Mat preference = photometricPreference(texture, b, f.measured, f.predicted);
+  ASSERT_EQ(preference.type(), CV_32FC1);
+  EXPECT_GT(cv::mean(preference(object - cv::Point(-5, -5) - cv::Size(10, 10)))[0], 8);
+  EXPECT_LT(cv::mean(preference(failed))[0], 0);
+  EXPECT_NEAR(cv::mean(preference(cv::Rect(10, 95, 30, 20)))[0], 0, 0.5);  // static, right flow
+  EXPECT_TRUE(std::isnan(preference.at<float>(60, 159)));                  // both ends outside b
+
+  MotionSegmentationParams params;
+  params.min_residual_px = 1.0;
+  params.relative_residual = 0.1;
+  params.min_object_pixels = 400;
+  MotionSegmenter flow_only(params), with_photo(params);
+  const cv::Mat two = flow_only.segment(f.measured, f.predicted, f.depth_flow);
+  EXPECT_GT(cv::countNonZero(two(failed)), 400) << "the failed flow looks like an object";
+  const cv::Mat one = with_photo.segment(f.measured, f.predicted, f.depth_flow, {}, preference);
+  EXPECT_EQ(cv::countNonZero(one(failed)), 0);
+  EXPECT_NEAR(cv::countNonZero(one), object.area(), 0.1 * object.area());
 }
 
 // The camera drives 0.3 m forward towards a textured wall 5 m ahead; a 40 x 40 px patch of it
