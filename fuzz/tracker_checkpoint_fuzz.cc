@@ -3,8 +3,6 @@
 // tracks the sequence's last frames and finishes, as a resumed radslam-tracker does. A clear
 // exception is an accepted outcome; a crash, a sanitizer report, an allocation past libFuzzer's
 // limit or a hang is a finding. A refused file must leave the tracker as it was.
-#include <unistd.h>
-
 #include <cstddef>
 #include <cstdint>
 #include <cstdio>
@@ -12,34 +10,12 @@
 #include <exception>
 #include <string>
 
+#include "fuzz/input_file.h"
 #include "fuzz/tracker_sequence.h"
-
-namespace {
-
-// One checkpoint file per fuzzing process, rewritten for every input.
-const std::string& checkpointPath() {
-  static const std::string path = [] {
-    char pattern[] = "/tmp/radslam_fuzz_tracker_checkpoint_XXXXXX";
-    const int fd = mkstemp(pattern);
-    if (fd < 0) {
-      std::perror("tracker checkpoint fuzz: mkstemp");
-      std::abort();
-    }
-    close(fd);
-    return std::string(pattern);
-  }();
-  return path;
-}
-
-}  // namespace
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   using radslam::fuzz::trackerSequence;
-  const std::string& path = checkpointPath();
-  FILE* f = std::fopen(path.c_str(), "wb");
-  if (!f) std::abort();
-  if (size > 0 && std::fwrite(data, 1, size, f) != size) std::abort();
-  std::fclose(f);
+  const std::string& path = radslam::fuzz::writeInputFile("tracker_checkpoint", data, size);
   radslam::Tracker tracker(radslam::fuzz::trackerParams());
   try {
     tracker.loadCheckpoint(path);
