@@ -8,6 +8,8 @@
 #include <stdexcept>
 #include <utility>
 
+#include <opencv2/imgproc.hpp>
+
 #include "common/camera.h"
 
 namespace radslam {
@@ -92,10 +94,12 @@ ObjectTracker::ObjectTracker(ObjectTrackerParams params, const CameraModel& came
   if (params_.stride < 1 || params_.min_points < params_.tracking.min_points ||
       !(params_.max_depth_m > 0) || params_.hinge_min_motions < 2 ||
       !(params_.hinge_min_angle > 0) || !(params_.static_speed >= 0) ||
-      !(params_.static_angular_speed >= 0) || params_.static_frames < 1) {
+      !(params_.static_angular_speed >= 0) || params_.static_frames < 1 ||
+      params_.mask_dilation_px < 0) {
     throw std::invalid_argument(
         "object tracker: need stride >= 1, min_points >= tracking.min_points, max_depth_m > 0, "
-        "hinge_min_motions >= 2, hinge_min_angle > 0, static speeds >= 0, static_frames >= 1");
+        "hinge_min_motions >= 2, hinge_min_angle > 0, static speeds >= 0, static_frames >= 1, "
+        "mask_dilation_px >= 0");
   }
 }
 
@@ -143,7 +147,12 @@ cv::Mat ObjectTracker::movingMask(const cv::Mat& instance, const cv::Mat& class_
       any = true;
     }
   }
-  return any ? mask : cv::Mat();
+  if (!any) return {};
+  if (params_.mask_dilation_px > 0) {
+    const int k = 2 * params_.mask_dilation_px + 1;
+    cv::dilate(mask, mask, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(k, k)));
+  }
+  return mask;
 }
 
 std::vector<Vec3> ObjectTracker::objectPoints(const ObjectFrame& frame, int instance_id) const {

@@ -125,6 +125,7 @@ void Tracker::Impl::setUpCamera(std::unique_ptr<ImagePreparer> first_preparer) {
   ObjectTrackerParams object_params;
   object_params.classes = parseDynamicClasses(p.dynamic_classes);
   object_params.stride = p.object_stride;
+  object_params.mask_dilation_px = p.object_mask_dilation_px;
   object_params.flow_warp_smoothing_px = p.object_flow_smoothing_px;
   if (p.motion_segmentation) {
     // Objects found by motion segmentation: a class of their own with a free joint.

@@ -180,6 +180,7 @@ struct TrackerParams {
   double stereo_disparity_sigma_px = 0.5;  // working px: stereo depth noise for segmentation
   double motion_max_fraction = 0.5;        // of the image: more moving means the pose is wrong
   int object_stride = 2;                   // working px between an object's sample points
+  int object_mask_dilation_px = 3;         // working px the moving mask grows by (silhouette edges)
   double object_flow_smoothing_px = 4;  // working px (ObjectTrackerParams::flow_warp_smoothing_px)
 
   // Keyframe output (KEYFRAME messages at working resolution).

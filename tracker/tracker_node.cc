@@ -116,6 +116,7 @@ void validateTrackerParams(const TrackerParams& p) {
         "resend tolerances must be >= 0");
   check(p.resend_min_keyframes >= 1, "resend_min_keyframes must be >= 1");
   check(p.object_stride >= 1, "object_stride must be >= 1");
+  check(p.object_mask_dilation_px >= 0, "object_mask_dilation_px must be >= 0");
   check(p.motion_residual_px > 0 && p.motion_min_pixels >= 1 && p.motion_class_id >= 1 &&
             p.motion_class_id <= 65535,
         "motion_residual_px > 0, motion_min_pixels >= 1, motion_class_id in [1, 65535]");
@@ -207,6 +208,7 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("dynamic_objects", &p.dynamic_objects);
   r.get("dynamic_classes", &p.dynamic_classes);
   r.get("object_stride", &p.object_stride);
+  r.get("object_mask_dilation_px", &p.object_mask_dilation_px);
   r.get("motion_segmentation", &p.motion_segmentation);
   r.get("motion_residual_px", &p.motion_residual_px);
   r.get("motion_photometric_margin", &p.motion_photometric_margin);
@@ -390,8 +392,7 @@ void TrackerNode::processQueued() {
     const Frame frame = std::move(queue_.front());
     queue_.pop_front();
     handle(frame);
-    if (!options_.checkpoint_path.empty() && options_.checkpoint_period_s > 0 &&
-        secondsSince(last_checkpoint_) >= options_.checkpoint_period_s) {
+    if (checkpointing() && secondsSince(last_checkpoint_) >= options_.checkpoint_period_s) {
       saveCheckpoint();
     }
     // Keep the queue current (and hear CONTROL) between frames.
@@ -439,7 +440,7 @@ int TrackerNode::run() {
       republish_queue_.insert(republish_queue_.end(), std::make_move_iterator(keyframes.begin()),
                               std::make_move_iterator(keyframes.end()));
       // Their new versions are on record: a tracker resumed later never sends one again.
-      if (!options_.checkpoint_path.empty() && options_.checkpoint_period_s > 0) saveCheckpoint();
+      if (checkpointing()) saveCheckpoint();
     }
     if (rewind_from_ >= 0 && secondsSince(last_rewind_request_) >= kRewindRequestPeriodS) {
       Control rewind;

@@ -74,6 +74,9 @@ class TrackerNode {
   /// Paced: a keyframe is megabytes of UDP fragments.
   void publishKeyframes(const std::vector<Keyframe>& keyframes);
   void publishStatus(ProcessState state);
+  bool checkpointing() const {
+    return !options_.checkpoint_path.empty() && options_.checkpoint_period_s > 0;
+  }
   void saveCheckpoint();
   void finish();
 

@@ -40,6 +40,37 @@ TEST(DynamicClasses, RejectsBadItemsNamingThem) {
   }
 }
 
+// A pixel of a dynamic class is masked, and the mask grows by mask_dilation_px around it
+// (the background at a moving silhouette is occluded and revealed); other classes are not.
+TEST(ObjectTracker, MovingMaskGrowsByTheDilation) {
+  CameraModel camera;
+  camera.width = 64;
+  camera.height = 48;
+  camera.fx = camera.fy = 50;
+  camera.cx = 31.5;
+  camera.cy = 23.5;
+  cv::Mat class_id(48, 64, CV_16UC1, cv::Scalar(1));  // static class 1 (the road)
+  class_id(cv::Rect(20, 10, 10, 10)).setTo(cv::Scalar(10));  // a car
+  const cv::Mat instance(48, 64, CV_16UC1, cv::Scalar(0));
+  for (int dilation : {0, 3}) {
+    ObjectTrackerParams params;
+    params.classes = parseDynamicClasses("10:planar:1");
+    params.mask_dilation_px = dilation;
+    const ObjectTracker tracker(params, camera, FlowOptions{});
+    const cv::Mat mask = tracker.movingMask(instance, class_id);
+    ASSERT_EQ(mask.type(), CV_8UC1);
+    EXPECT_EQ(cv::countNonZero(mask(cv::Rect(20, 10, 10, 10))), 100);
+    EXPECT_EQ(mask.at<uint8_t>(15, 20 - dilation), 255) << "grown by " << dilation;
+    EXPECT_EQ(mask.at<uint8_t>(15, 20 - dilation - 1), 0);
+    EXPECT_EQ(mask.at<uint8_t>(10 + 10 + dilation - 1, 25), 255);
+    EXPECT_EQ(mask.at<uint8_t>(10 + 10 + dilation, 25), 0);
+  }
+  ObjectTrackerParams params;
+  params.classes = parseDynamicClasses("10:planar:1");
+  params.mask_dilation_px = -1;
+  EXPECT_THROW(ObjectTracker(params, camera, FlowOptions{}), std::invalid_argument);
+}
+
 // The door scene (a door turning on its hinge in a room) at 320x240 with sensor noise.
 struct DoorSequence {
   static constexpr int kFrames = 60;
