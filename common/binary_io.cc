@@ -45,6 +45,14 @@ void BinaryWriter::header(const Header& h) {
   str(h.sender);
 }
 
+void BinaryWriter::camera(const CameraModel& c) {
+  put<int32_t>(c.width);
+  put<int32_t>(c.height);
+  put(c.type);
+  for (double v : {c.fx, c.fy, c.cx, c.cy}) put(v);
+  vec(c.distortion);
+}
+
 void BinaryWriter::commit() {
   out_.flush();
   if (!out_) throw std::runtime_error(what_ + ": write failed (disk full?)");
@@ -116,6 +124,16 @@ Header BinaryReader::header() {
   h.seq = get<int64_t>();
   h.sender = str();
   return h;
+}
+
+CameraModel BinaryReader::camera() {
+  CameraModel c;
+  c.width = get<int32_t>();
+  c.height = get<int32_t>();
+  c.type = get<CameraModel::Type>();
+  for (double* v : {&c.fx, &c.fy, &c.cx, &c.cy}) *v = get<double>();
+  vec(&c.distortion);
+  return c;
 }
 
 }  // namespace radslam

@@ -47,6 +47,8 @@ class BinaryWriter {
     for (int i = 0; i < m.size(); ++i) put(m.data()[i]);
   }
   void header(const Header& h);
+  /// Size, model type, fx fy cx cy and distortion.
+  void camera(const CameraModel& c);
   /// Flushes, closes and renames PATH.tmp to PATH. Throws std::runtime_error (disk full, ...).
   void commit();
 
@@ -91,6 +93,8 @@ class BinaryReader {
     for (int i = 0; i < m->size(); ++i) m->data()[i] = get<double>();
   }
   Header header();
+  /// As written by BinaryWriter::camera (not validated: the caller checks the camera).
+  CameraModel camera();
   /// A count of items of at least min_bytes each; fails when the rest of the file cannot hold
   /// them (checked before anything is allocated).
   uint32_t count(size_t min_bytes);

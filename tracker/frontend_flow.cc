@@ -23,20 +23,22 @@ int presetOf(const std::string& name) {
   throw std::invalid_argument("flow preset '" + name + "' is unknown (ultrafast, fast, medium)");
 }
 
-// x + flow(x) per pixel (CV_32FC2), the map cv::remap takes.
-cv::Mat absoluteMap(const cv::Mat& flow) {
+}  // namespace
+
+cv::Mat flowTargetMap(const cv::Mat& flow) {
+  CV_Assert(flow.type() == CV_32FC2);
   cv::Mat map(flow.size(), CV_32FC2);
   for (int y = 0; y < flow.rows; ++y) {
     const cv::Vec2f* f = flow.ptr<cv::Vec2f>(y);
     cv::Vec2f* m = map.ptr<cv::Vec2f>(y);
     for (int x = 0; x < flow.cols; ++x) {
-      m[x] = cv::Vec2f(static_cast<float>(x) + f[x][0], static_cast<float>(y) + f[x][1]);
+      const bool known = std::isfinite(f[x][0]) && std::isfinite(f[x][1]);
+      m[x] = known ? cv::Vec2f(static_cast<float>(x) + f[x][0], static_cast<float>(y) + f[x][1])
+                   : cv::Vec2f(-1e4f, -1e4f);
     }
   }
   return map;
 }
-
-}  // namespace
 
 DenseFlow::DenseFlow(const FlowOptions& options) : options_(options) {
   presetOf(options.preset);  // throws on an unknown preset
@@ -86,12 +88,12 @@ cv::Mat DenseFlow::compute(const cv::Mat& grey_a, const cv::Mat& grey_b, const c
     cv::GaussianBlur(init, smooth_init, cv::Size(0, 0), options_.warp_smoothing_px);
   }
   cv::Mat warped;
-  cv::remap(b, warped, absoluteMap(smooth_init), cv::noArray(), cv::INTER_LINEAR,
+  cv::remap(b, warped, flowTargetMap(smooth_init), cv::noArray(), cv::INTER_LINEAR,
             cv::BORDER_REPLICATE);
   cv::Mat residual;
   dis->calc(a, warped, residual);
   cv::Mat init_at_target;
-  cv::remap(smooth_init, init_at_target, absoluteMap(residual), cv::noArray(), cv::INTER_LINEAR,
+  cv::remap(smooth_init, init_at_target, flowTargetMap(residual), cv::noArray(), cv::INTER_LINEAR,
             cv::BORDER_REPLICATE);
   return residual + init_at_target;
 }

@@ -101,6 +101,10 @@ class DenseFlow {
   FlowOptions options_;
 };
 
+/// x + flow(x) per pixel (CV_32FC2), the map cv::remap takes; a non-finite flow maps far
+/// outside the image (remap then gives the border value). flow: CV_32FC2.
+cv::Mat flowTargetMap(const cv::Mat& flow);
+
 /// Working-resolution flow predicted by grid targets (CV_32FC2 grid, location in b's grid;
 /// NaN where there is no prediction): flow = cell * (target - p), non-finite entries replaced
 /// by the median of the finite ones (0 if none), upsampled bilinearly (pixel-centre convention

@@ -337,12 +337,7 @@ void KeyframeGraph::save(BinaryWriter* out) const {
     w.put<int32_t>(k.id);
     w.put<int64_t>(k.frame_index);
     w.header(k.header);
-    for (const cv::Mat* m :
-         {&k.color, &k.grey, &k.structure, &k.gradients, &k.right_grey, &k.stereo_target,
-          &k.stereo_weight, &k.moving, &k.depth, &k.ba.inv_depth, &k.ba.prior_inv_depth,
-          &k.ba.prior_inv_depth_var, &k.sensor_inv_depth, &k.sensor_inv_depth_var, &k.inv_depth_var,
-          &k.sent_inv_depth})
-      w.mat(*m);
+    for (const auto& image : keyframeImages(k)) w.mat(*image.image);
     w.se3(k.ba.T_world_cam);
     w.put<uint8_t>(k.ba.fixed_pose);
     w.matrix(k.covariance);
@@ -374,11 +369,7 @@ void KeyframeGraph::load(BinaryReader* in) {
     if (k.id != static_cast<int>(id)) r.fail("keyframe ids out of order");
     k.frame_index = r.get<int64_t>();
     k.header = r.header();
-    for (cv::Mat* m : {&k.color, &k.grey, &k.structure, &k.gradients, &k.right_grey,
-                       &k.stereo_target, &k.stereo_weight, &k.moving, &k.depth, &k.ba.inv_depth,
-                       &k.ba.prior_inv_depth, &k.ba.prior_inv_depth_var, &k.sensor_inv_depth,
-                       &k.sensor_inv_depth_var, &k.inv_depth_var, &k.sent_inv_depth})
-      *m = r.mat();
+    for (const auto& image : keyframeImages(k)) *image.image = r.mat();
     if (k.ba.inv_depth.type() != CV_32FC1) r.fail("keyframe " + std::to_string(id) + ": no depths");
     k.ba.T_world_cam = r.se3();
     k.ba.fixed_pose = r.get<uint8_t>() != 0;

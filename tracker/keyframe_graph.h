@@ -7,7 +7,9 @@
 /// inverse depth (the images are released to bound memory) and its edges are removed.
 #pragma once
 
+#include <array>
 #include <optional>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -51,6 +53,40 @@ struct KeyframeData {
   SE3 sent_pose;
   cv::Mat sent_inv_depth;
 };
+
+/// One of a keyframe's images, with the resolution it is used at and the types it may have.
+template <class Mat>  // cv::Mat or const cv::Mat
+struct KeyframeImageRef {
+  const char* name;
+  Mat* image;  // may be empty (released, or not used in this mode)
+  bool grid;   // BA grid size, else working size
+  std::array<int, 2> types;
+};
+
+/// Every image of a keyframe, in the order checkpoints store them. K: KeyframeData or const
+/// KeyframeData.
+template <class K>
+auto keyframeImages(K& k) {
+  using Ref = KeyframeImageRef<std::conditional_t<std::is_const_v<K>, const cv::Mat, cv::Mat>>;
+  return std::array<Ref, 16>{{
+      {"colour", &k.color, false, {CV_8UC1, CV_8UC3}},
+      {"grey", &k.grey, false, {CV_8UC1, CV_8UC1}},
+      {"structure tensor", &k.structure, true, {CV_32FC3, CV_32FC3}},
+      {"gradients", &k.gradients, false, {CV_32FC2, CV_32FC2}},
+      {"right image", &k.right_grey, false, {CV_8UC1, CV_8UC1}},
+      {"stereo targets", &k.stereo_target, true, {CV_32FC2, CV_32FC2}},
+      {"stereo weights", &k.stereo_weight, true, {CV_32FC2, CV_32FC2}},
+      {"moving mask", &k.moving, false, {CV_8UC1, CV_8UC1}},
+      {"depth", &k.depth, false, {CV_32FC1, CV_32FC1}},
+      {"inverse depth", &k.ba.inv_depth, true, {CV_32FC1, CV_32FC1}},
+      {"inverse-depth prior", &k.ba.prior_inv_depth, true, {CV_32FC1, CV_32FC1}},
+      {"inverse-depth prior variance", &k.ba.prior_inv_depth_var, true, {CV_32FC1, CV_32FC1}},
+      {"sensor inverse depth", &k.sensor_inv_depth, true, {CV_32FC1, CV_32FC1}},
+      {"sensor inverse-depth variance", &k.sensor_inv_depth_var, true, {CV_32FC1, CV_32FC1}},
+      {"inverse-depth variance", &k.inv_depth_var, true, {CV_32FC1, CV_32FC1}},
+      {"inverse depth sent", &k.sent_inv_depth, true, {CV_32FC1, CV_32FC1}},
+  }};
+}
 
 /// Flow edge between two keyframes (ids), or a stereo edge (j = -1, T_i_other set).
 struct GraphEdge {

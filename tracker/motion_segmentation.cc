@@ -10,6 +10,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "common/camera.h"
+#include "tracker/frontend_flow.h"
 
 namespace radslam {
 
@@ -58,17 +59,8 @@ cv::Mat photometricPreference(const cv::Mat& grey_a, const cv::Mat& grey_b, cons
   grey_b.convertTo(b, CV_32F);
   // |b(x + flow) - a(x)|, NaN where x + flow is outside b or the flow is unknown.
   const auto error = [&](const cv::Mat& flow) {
-    cv::Mat map(flow.size(), CV_32FC2);
-    for (int y = 0; y < flow.rows; ++y) {
-      const cv::Vec2f* f = flow.ptr<cv::Vec2f>(y);
-      cv::Vec2f* m = map.ptr<cv::Vec2f>(y);
-      for (int x = 0; x < flow.cols; ++x) {
-        const bool known = std::isfinite(f[x][0]) && std::isfinite(f[x][1]);
-        m[x] = known ? cv::Vec2f(x + f[x][0], y + f[x][1]) : cv::Vec2f(-1e4f, -1e4f);  // outside
-      }
-    }
     cv::Mat warped;
-    cv::remap(b, warped, map, cv::noArray(), cv::INTER_LINEAR, cv::BORDER_CONSTANT,
+    cv::remap(b, warped, flowTargetMap(flow), cv::noArray(), cv::INTER_LINEAR, cv::BORDER_CONSTANT,
               cv::Scalar(kNaN));
     return cv::Mat(cv::abs(warped - a));
   };

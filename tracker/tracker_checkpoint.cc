@@ -6,8 +6,8 @@
 //   u32 frames, each: header, index, reference keyframe, relative pose and covariance, state
 //   u32 pending frames, each: frame record and its correspondences
 //   the keyframe graph (KeyframeGraph::save), the object tracker and the motion segmenter
+#include <array>
 #include <cstring>
-#include <initializer_list>
 #include <stdexcept>
 #include <string>
 #include <tuple>
@@ -59,31 +59,9 @@ struct StateOptions {
   }
 };
 
-void writeCamera(BinaryWriter* w, const CameraModel& c) {
-  w->put<int32_t>(c.width);
-  w->put<int32_t>(c.height);
-  w->put(c.type);
-  for (double v : {c.fx, c.fy, c.cx, c.cy}) w->put(v);
-  w->vec(c.distortion);
-}
-
-CameraModel readCamera(BinaryReader* r) {
-  CameraModel c;
-  c.width = r->get<int32_t>();
-  c.height = r->get<int32_t>();
-  c.type = r->get<CameraModel::Type>();
-  for (double* v : {&c.fx, &c.fy, &c.cx, &c.cy}) *v = r->get<double>();
-  r->vec(&c.distortion);
-  return c;
-}
-
 /// Empty, or of this size and one of these types.
-bool imageFits(const cv::Mat& m, cv::Size size, std::initializer_list<int> types) {
-  if (m.empty()) return true;
-  if (m.size() != size) return false;
-  for (int t : types)
-    if (m.type() == t) return true;
-  return false;
+bool imageFits(const cv::Mat& m, cv::Size size, const std::array<int, 2>& types) {
+  return m.empty() || (m.size() == size && (m.type() == types[0] || m.type() == types[1]));
 }
 
 /// The images of a loaded state have the sizes and types the tracker works with (a file that
@@ -93,33 +71,9 @@ std::string checkImages(const KeyframeGraph& graph, const std::vector<PendingFra
                         const GridGeometry& g) {
   const cv::Size work = g.workingSize(), grid = g.gridSize();
   for (const KeyframeData& k : graph.all()) {
-    struct Expected {
-      const char* name;
-      const cv::Mat& image;
-      cv::Size size;
-      std::initializer_list<int> types;
-    };
-    const Expected expected[] = {
-        {"colour", k.color, work, {CV_8UC1, CV_8UC3}},
-        {"grey", k.grey, work, {CV_8UC1}},
-        {"gradients", k.gradients, work, {CV_32FC2}},
-        {"right image", k.right_grey, work, {CV_8UC1}},
-        {"moving mask", k.moving, work, {CV_8UC1}},
-        {"depth", k.depth, work, {CV_32FC1}},
-        {"structure tensor", k.structure, grid, {CV_32FC3}},
-        {"inverse depth", k.ba.inv_depth, grid, {CV_32FC1}},
-        {"inverse-depth prior", k.ba.prior_inv_depth, grid, {CV_32FC1}},
-        {"inverse-depth prior variance", k.ba.prior_inv_depth_var, grid, {CV_32FC1}},
-        {"sensor inverse depth", k.sensor_inv_depth, grid, {CV_32FC1}},
-        {"sensor inverse-depth variance", k.sensor_inv_depth_var, grid, {CV_32FC1}},
-        {"inverse-depth variance", k.inv_depth_var, grid, {CV_32FC1}},
-        {"inverse depth sent", k.sent_inv_depth, grid, {CV_32FC1}},
-        {"stereo targets", k.stereo_target, grid, {CV_32FC2}},
-        {"stereo weights", k.stereo_weight, grid, {CV_32FC2}},
-    };
-    for (const Expected& e : expected)
-      if (!imageFits(e.image, e.size, e.types))
-        return "keyframe " + std::to_string(k.id) + ": " + e.name + " of a wrong size or type";
+    for (const auto& image : keyframeImages(k))
+      if (!imageFits(*image.image, image.grid ? grid : work, image.types))
+        return "keyframe " + std::to_string(k.id) + ": " + image.name + " of a wrong size or type";
     const bool paired = k.grey.empty() == k.structure.empty() &&
                         k.ba.prior_inv_depth.empty() == k.ba.prior_inv_depth_var.empty() &&
                         k.sensor_inv_depth.empty() == k.sensor_inv_depth_var.empty() &&
@@ -148,7 +102,7 @@ void Tracker::saveCheckpoint(const std::string& path) const {
   w.put(kFormat);
   StateOptions(params_, mode_).write(&w);
   w.put<uint8_t>(s.preparer != nullptr);
-  if (s.preparer) writeCamera(&w, s.preparer->input());
+  if (s.preparer) w.camera(s.preparer->input());
   w.put(s.baseline_m);
   w.put<uint8_t>(s.ba_ran);
   w.put<uint8_t>(s.first_ba_done);
@@ -195,7 +149,7 @@ void Tracker::loadCheckpoint(const std::string& path) {
   auto s = std::make_unique<Impl>(params_, mode_);
   if (r.get<uint8_t>()) {
     try {
-      s->setUpCamera(s->makePreparer(readCamera(&r)));
+      s->setUpCamera(s->makePreparer(r.camera()));
     } catch (const std::invalid_argument& e) {
       r.fail(std::string("camera: ") + e.what());
     }
