@@ -87,7 +87,7 @@ class SyntheticScene {
   /// Time (s) at which the moving objects are posed for a frame: its own, or with
   /// freeze_objects the last frame's.
   double objectTime(int frame) const;
-  CameraModel camera() const;         // pinhole, config size
+  CameraModel camera() const;  // pinhole, config size
   double baseline() const { return config_.baseline_m; }
 
   /// T_world_cam of the (left) camera at a frame; frames past numFrames() continue the path.

@@ -35,7 +35,7 @@ const char* kUsage = R"(usage: radslam-bench-dynamic [options]
   --depth-noise R    depth sigma = R z^2 (default 0.002 1/m)
   --outliers F       fraction of wrong correspondences (default 0.05)
   --window N         frames per dynamic BA window (default 5)
-  --seed N           noise seed (default 1)
+  --seed N           noise seed (default 1; with --pipeline: the rendered sensor noise)
   --pipeline         instead: run the whole tracker (RGB-D and stereo) on the rendered sequences
                      with sensor noise: camera ATE with and without the handling of moving
                      objects and on the same scene with the objects frozen, and the error of the
@@ -47,6 +47,8 @@ const char* kUsage = R"(usage: radslam-bench-dynamic [options]
   --mask-dir DIR     with --pipeline: write each frame's true and segmented moving masks there
                      (DIR/<scene>-<mode>-<frame>.png: true in red, segmented in green)
   --set KEY=VALUE    with --pipeline: override tracker parameters (comma-separated)
+  --seeds N          with --pipeline: run the noise seeds seed..seed+N-1 and print medians
+                     (default 1; the camera ATE of one scene varies by 2x from seed to seed)
 )";
 
 constexpr double kDeg = 180.0 / M_PI;
@@ -62,6 +64,13 @@ struct Stats {
     double s = 0;
     for (double x : v) s += x;
     return v.empty() ? NAN : s / v.size();
+  }
+  static double median(std::vector<double> v) {  // of the values that are not NaN
+    v.erase(std::remove_if(v.begin(), v.end(), [](double x) { return std::isnan(x); }), v.end());
+    if (v.empty()) return NAN;
+    std::sort(v.begin(), v.end());
+    const size_t n = v.size();
+    return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
   }
 };
 
@@ -323,84 +332,159 @@ PipelineRun runTracker(const SyntheticScene& scene, const std::vector<Frame>& fr
   return run;
 }
 
+/// One scene's sequences for one noise seed: moving, frozen, and moving with masks withheld.
+struct PipelineScene {
+  SyntheticScene moving, frozen;
+  std::vector<Frame> moving_frames, frozen_frames, unlabelled_frames;
+  std::vector<cv::Mat> gt_moving;
+  // Mean fraction of the image that objects of dynamic classes cover, moving and frozen: a
+  // frozen object stays behind as the camera moves on, so it hides less of the static scene.
+  double moving_share = 0, frozen_share = 0;
+};
+
+double dynamicShare(const std::vector<SemanticClass>& classes, const cv::Mat& class_id) {
+  cv::Mat dynamic(class_id.size(), CV_8UC1, cv::Scalar(0));
+  for (const SemanticClass& c : classes)
+    if (c.dynamic) dynamic |= class_id == c.id;
+  return static_cast<double>(cv::countNonZero(dynamic)) / class_id.total();
+}
+
+PipelineScene makePipelineScene(SyntheticConfig config) {
+  const SyntheticScene moving = SyntheticScene::make(config);
+  config.freeze_objects = true;
+  PipelineScene s{moving, SyntheticScene::make(config), {}, {}, {}, {}};
+  for (int i = 0; i < config.frames; ++i) {
+    s.moving_frames.push_back(s.moving.frame(i));
+    s.frozen_frames.push_back(s.frozen.frame(i));
+    s.gt_moving.push_back(trueMovingMask(s.moving, s.moving_frames.back(), i));
+    // Masks withheld: the tracker segments the motion itself.
+    s.unlabelled_frames.push_back(s.moving_frames.back());
+    s.unlabelled_frames.back().instance.release();
+    s.unlabelled_frames.back().class_id.release();
+    s.moving_share += dynamicShare(s.moving.classes(), s.moving_frames.back().class_id);
+    s.frozen_share += dynamicShare(s.frozen.classes(), s.frozen_frames.back().class_id);
+  }
+  s.moving_share /= config.frames;
+  s.frozen_share /= config.frames;
+  return s;
+}
+
+/// One table row's figures for one seed.
+struct PipelineRow {
+  double dyn = NAN, no_dyn = NAN, frozen = NAN, frozen_no_dyn = NAN;  // camera ATE, m
+  double joint_t = NAN, joint_r = NAN, free_t = NAN, free_r = NAN;    // m, deg
+  double pairs = 0, fps = 0, seg_ate = NAN, iou = NAN;
+  double moving_share = NAN, frozen_share = NAN;  // of the image, see PipelineScene
+};
+
 int runPipeline(const std::vector<std::string>& scenes, int frames, int width, double fps,
-                bool segmentation_only, const std::string& mask_dir, const TrackerParams& base) {
+                uint64_t first_seed, int seeds, bool segmentation_only, const std::string& mask_dir,
+                const TrackerParams& base) {
   std::printf(
-      "whole tracker, %d frames %dx%d with sensor noise (colour sigma 2, depth 0.0015 z^2); "
-      "camera ATE (SE3, m);\nobject motion error per frame (mean t m / r deg) of the tracker's "
-      "objects, class joints vs all joints free\n",
-      frames, width, width * 3 / 4);
-  std::printf("%-6s %3s %-6s | %8s %8s %8s %9s %6s | %8s %7s | %8s %7s | %5s %5s | %8s %5s\n",
-              "scene", "Hz", "mode", "dyn", "no dyn", "frozen", "frz nodyn", "ratio", "joint t",
-              "r", "free t", "r", "pairs", "fps", "seg", "IoU");
+      "whole tracker, %d frames %dx%d with sensor noise (colour sigma 2, depth 0.0015 z^2), "
+      "noise seeds %llu..%llu; camera ATE (SE3, m);\nobject motion error per frame (mean t m / r "
+      "deg) of the tracker's objects, class joints vs all joints free\n",
+      frames, width, width * 3 / 4, static_cast<unsigned long long>(first_seed),
+      static_cast<unsigned long long>(first_seed + seeds - 1));
+  std::printf(
+      "%-6s %3s %-6s | %5s %5s | %8s %8s %8s %9s %6s | %8s %7s | %8s %7s | %5s %5s | %8s %5s\n",
+      "scene", "Hz", "mode", "obj", "frz", "dyn", "no dyn", "frozen", "frz nodyn", "ratio",
+      "joint t", "r", "free t", "r", "pairs", "fps", "seg", "IoU");
+  const char* const modes[] = {"rgbd", "stereo"};
   for (const std::string& name : scenes) {
-    SyntheticConfig config;
-    config.scene = name;
-    config.frames = frames;
-    config.width = width;
-    config.height = width * 3 / 4;
-    config.image_noise_sigma = 2.0;
-    config.depth_noise_rel = 0.0015;
-    config.fps = fps;
-    const SyntheticScene scene = SyntheticScene::make(config);
-    config.freeze_objects = true;
-    const SyntheticScene frozen = SyntheticScene::make(config);
-    std::vector<Frame> moving_frames, frozen_frames, unlabelled_frames;
-    std::vector<cv::Mat> gt_moving;
-    for (int i = 0; i < frames; ++i) {
-      moving_frames.push_back(scene.frame(i));
-      frozen_frames.push_back(frozen.frame(i));
-      gt_moving.push_back(trueMovingMask(scene, moving_frames.back(), i));
-      // Masks withheld: the tracker segments the motion itself.
-      unlabelled_frames.push_back(moving_frames.back());
-      unlabelled_frames.back().instance.release();
-      unlabelled_frames.back().class_id.release();
-    }
-    std::string free_classes;  // the scene's dynamic classes, all with a free joint
-    for (const SemanticClass& c : scene.classes()) {
-      if (!c.dynamic) continue;
-      free_classes += (free_classes.empty() ? "" : ",") + std::to_string(c.id) + ":free";
-    }
-    for (const char* mode : {"rgbd", "stereo"}) {
-      TrackerParams with = base;
-      with.mode = mode;
-      TrackerParams without = with;
-      without.dynamic_objects = false;
-      TrackerParams all_free = with;
-      all_free.dynamic_classes = free_classes;
-      PipelineRun dyn, no_dyn, frz, frz_no, free;
-      if (!segmentation_only) {
-        dyn = runTracker(scene, moving_frames, with);
-        no_dyn = runTracker(scene, moving_frames, without);
-        frz = runTracker(frozen, frozen_frames, with);
-        frz_no = runTracker(frozen, frozen_frames, without);
-        free = runTracker(scene, moving_frames, all_free);
+    std::vector<PipelineRow> rows[2];
+    double scene_fps = 0;
+    for (int k = 0; k < seeds; ++k) {
+      SyntheticConfig config;
+      config.scene = name;
+      config.frames = frames;
+      config.width = width;
+      config.height = width * 3 / 4;
+      config.image_noise_sigma = 2.0;
+      config.depth_noise_rel = 0.0015;
+      config.fps = fps;
+      config.seed = first_seed + k;
+      const PipelineScene s = makePipelineScene(config);
+      scene_fps = s.moving.fps();
+      std::string free_classes;  // the scene's dynamic classes, all with a free joint
+      for (const SemanticClass& c : s.moving.classes()) {
+        if (!c.dynamic) continue;
+        free_classes += (free_classes.empty() ? "" : ",") + std::to_string(c.id) + ":free";
       }
-      TrackerParams segmenting = with;
-      segmenting.motion_segmentation = true;
-      const std::string mask_prefix =
-          mask_dir.empty() ? "" : mask_dir + "/" + name + "-" + mode + "-";
-      const PipelineRun seg =
-          runTracker(scene, unlabelled_frames, segmenting, &gt_moving, mask_prefix);
+      for (int m = 0; m < 2; ++m) {
+        TrackerParams with = base;
+        with.mode = modes[m];
+        TrackerParams without = with;
+        without.dynamic_objects = false;
+        TrackerParams all_free = with;
+        all_free.dynamic_classes = free_classes;
+        PipelineRow row;
+        row.moving_share = s.moving_share;
+        row.frozen_share = s.frozen_share;
+        if (!segmentation_only) {
+          const PipelineRun dyn = runTracker(s.moving, s.moving_frames, with);
+          const PipelineRun free = runTracker(s.moving, s.moving_frames, all_free);
+          row.dyn = dyn.camera.ate_rmse_m;
+          row.no_dyn = runTracker(s.moving, s.moving_frames, without).camera.ate_rmse_m;
+          row.frozen = runTracker(s.frozen, s.frozen_frames, with).camera.ate_rmse_m;
+          row.frozen_no_dyn = runTracker(s.frozen, s.frozen_frames, without).camera.ate_rmse_m;
+          row.joint_t = Stats::mean(dyn.object.t);
+          row.joint_r = Stats::mean(dyn.object.r) * kDeg;
+          row.free_t = Stats::mean(free.object.t);
+          row.free_r = Stats::mean(free.object.r) * kDeg;
+          row.pairs = static_cast<double>(dyn.object.t.size());
+          row.fps = dyn.fps;
+        }
+        TrackerParams segmenting = with;
+        segmenting.motion_segmentation = true;
+        const std::string mask_prefix =
+            mask_dir.empty() ? ""
+                             : mask_dir + "/" + name + "-" + modes[m] + "-" +
+                                   (seeds > 1 ? std::to_string(config.seed) + "-" : "");
+        const PipelineRun seg =
+            runTracker(s.moving, s.unlabelled_frames, segmenting, &s.gt_moving, mask_prefix);
+        row.seg_ate = seg.camera.ate_rmse_m;
+        row.iou = seg.iou;
+        if (seeds > 1) {
+          std::fprintf(stderr, "%s %s seed %llu: dyn %.4f frozen %.4f ratio %.2f, IoU %.2f\n",
+                       name.c_str(), modes[m], static_cast<unsigned long long>(config.seed),
+                       row.dyn, row.frozen, row.dyn / row.frozen, row.iou);
+        }
+        rows[m].push_back(row);
+      }
+    }
+    for (int m = 0; m < 2; ++m) {
+      const auto median = [&](double PipelineRow::*field) {
+        std::vector<double> v;
+        for (const PipelineRow& r : rows[m]) v.push_back(r.*field);
+        return Stats::median(v);
+      };
+      // The ratio is taken per seed (the same noise in both runs), then its median.
+      std::vector<double> ratios;
+      for (const PipelineRow& r : rows[m]) ratios.push_back(r.dyn / r.frozen);
       std::printf(
-          "%-6s %3.0f %-6s | %8.4f %8.4f %8.4f %9.4f %6.2f | %8.4f %7.3f | %8.4f %7.3f | %5zu "
-          "%5.1f | %8.4f %5.2f\n",
-          name.c_str(), scene.fps(), mode, dyn.camera.ate_rmse_m, no_dyn.camera.ate_rmse_m,
-          frz.camera.ate_rmse_m, frz_no.camera.ate_rmse_m,
-          dyn.camera.ate_rmse_m / frz.camera.ate_rmse_m, Stats::mean(dyn.object.t),
-          Stats::mean(dyn.object.r) * kDeg, Stats::mean(free.object.t),
-          Stats::mean(free.object.r) * kDeg, dyn.object.t.size(), dyn.fps, seg.camera.ate_rmse_m,
-          seg.iou);
+          "%-6s %3.0f %-6s | %5.3f %5.3f | %8.4f %8.4f %8.4f %9.4f %6.2f | %8.4f %7.3f | %8.4f "
+          "%7.3f | %5.0f %5.1f | %8.4f %5.2f\n",
+          name.c_str(), scene_fps, modes[m], median(&PipelineRow::moving_share),
+          median(&PipelineRow::frozen_share), median(&PipelineRow::dyn),
+          median(&PipelineRow::no_dyn), median(&PipelineRow::frozen),
+          median(&PipelineRow::frozen_no_dyn), Stats::median(ratios), median(&PipelineRow::joint_t),
+          median(&PipelineRow::joint_r), median(&PipelineRow::free_t), median(&PipelineRow::free_r),
+          median(&PipelineRow::pairs), median(&PipelineRow::fps), median(&PipelineRow::seg_ate),
+          median(&PipelineRow::iou));
       std::fflush(stdout);
     }
   }
   std::printf(
-      "dyn: moving-object pixels kept out of camera tracking, objects tracked; no dyn: every "
+      "obj, frz: mean share of the image covered by objects of dynamic classes, moving and "
+      "frozen.\ndyn: moving-object pixels kept out of camera tracking, objects tracked; no dyn: "
+      "every "
       "pixel drives the camera;\nfrozen: the same scene with the objects at their last pose; "
-      "ratio = dyn / frozen. Object errors in the object frame\n(E = T_o^-1 M_gt^-1 M_est T_o), "
-      "tracker world mapped to the ground truth's by the first camera pose.\nseg: masks withheld, "
-      "the tracker's motion segmentation instead: camera ATE and the mean IoU of its moving mask\n"
-      "with the true one over the frames where either is non-empty.\n");
+      "ratio = dyn / frozen (per seed). Object errors in the object frame\n(E = T_o^-1 M_gt^-1 "
+      "M_est T_o), tracker world mapped to the ground truth's by the first camera pose.\nseg: "
+      "masks withheld, the tracker's motion segmentation instead: camera ATE and the mean IoU "
+      "of its moving mask\nwith the true one over the frames where either is non-empty.%s\n",
+      seeds > 1 ? "\nEvery figure is the median over the seeds." : "");
   return 0;
 }
 
@@ -425,11 +509,13 @@ int run(int argc, char** argv) {
   const int stride = cli.getInt("stride", 2);
   const int window = cli.getInt("window", 5);
   const uint64_t seed = static_cast<uint64_t>(cli.getInt("seed", 1));
+  const int seeds = cli.getInt("seeds", 1);
   cli.finish();
-  if (frames < 2 || width < 32 || stride < 1 || window < 2 || !(noise.pixel_sigma > 0) ||
-      !(noise.depth_sigma_rel > 0) || noise.outlier_ratio < 0 || noise.outlier_ratio >= 1)
+  if (frames < 2 || width < 32 || stride < 1 || window < 2 || seeds < 1 ||
+      !(noise.pixel_sigma > 0) || !(noise.depth_sigma_rel > 0) || noise.outlier_ratio < 0 ||
+      noise.outlier_ratio >= 1)
     throw std::invalid_argument(
-        "need frames >= 2, width >= 32, stride >= 1, window >= 2, pixel-sigma > 0, "
+        "need frames >= 2, width >= 32, stride >= 1, window >= 2, seeds >= 1, pixel-sigma > 0, "
         "depth-noise > 0, 0 <= outliers < 1");
 
   if (pipeline) {
@@ -437,7 +523,7 @@ int run(int argc, char** argv) {
     std::stringstream items(set);
     for (std::string item; std::getline(items, item, ',');)
       if (!item.empty()) overrides.push_back(item);
-    return runPipeline(scenes, frames, width, fps, segmentation_only, mask_dir,
+    return runPipeline(scenes, frames, width, fps, seed, seeds, segmentation_only, mask_dir,
                        loadTrackerParams("", overrides));
   }
   std::printf(

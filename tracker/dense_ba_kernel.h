@@ -108,8 +108,7 @@ inline S cauchy(S s2, S k, S* irls_weight) {
 /// The kernel's cost at squared whitened norm s2 with scale k, and its IRLS weight.
 template <typename S>
 inline S robustCost(RobustKernel kernel, S s2, S k, S* irls_weight) {
-  return kernel == RobustKernel::kCauchy ? cauchy(s2, k, irls_weight)
-                                         : huber(s2, k, irls_weight);
+  return kernel == RobustKernel::kCauchy ? cauchy(s2, k, irls_weight) : huber(s2, k, irls_weight);
 }
 
 }  // namespace dense_ba

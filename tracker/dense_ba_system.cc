@@ -197,8 +197,8 @@ double DenseBundleAdjuster::System::keyframePass(int kf, const std::vector<SE3>&
 template <bool kLinearize>
 void DenseBundleAdjuster::System::rowPass(const Edge& e, EdgeContext* x, int v, Linearization* lin,
                                           double* cost, double* err, int* n) {
-  // The arithmetic of dense_ba::reproject and dense_ba::robustCost on blocks of kBlock pixels of one
-  // grid row (fixed-size arrays: unrolled and vectorised); invalid pixels get zero weight, the
+  // The arithmetic of dense_ba::reproject and dense_ba::robustCost on blocks of kBlock pixels of
+  // one grid row (fixed-size arrays: unrolled and vectorised); invalid pixels get zero weight, the
   // branches stay in two short scalar loops.
   using Block = Eigen::Array<double, kBlock, 1>;
   using CMap = Eigen::Map<const Block>;

@@ -83,6 +83,12 @@ class MotionSegmenter {
 /// more than max_grey_error from a's (the flow landed on another surface: thin poles,
 /// occlusions). depth_a, depth_b CV_32FC1 (m, 0 = invalid), grey_a, grey_b CV_8UC1, flow
 /// CV_32FC2 a -> b, all of camera's size.
+cv::Mat depthDisagreement(const cv::Mat& depth_a, const cv::Mat& depth_b, const cv::Mat& grey_a,
+                          const cv::Mat& grey_b, const cv::Mat& flow, const cv::Mat& depth_flow,
+                          const SE3& T_b_a, const CameraModel& camera, double sigma_a,
+                          double sigma_b, double sigma_z0, double max_grey_error = 12,
+                          int radius = 2);
+
 /// The flow a -> b (CV_32FC2 working px, a's size) the static scene makes where a's depth is
 /// measured (depth_a CV_32FC1 m, 0 = unknown; RGB-D sensor or stereo): thin structures keep
 /// their own depth, which the BA grid blends with what is behind them. `fallback` (the grid's
@@ -99,11 +105,5 @@ cv::Mat staticFlowFromDepth(const cv::Mat& depth_a, const SE3& T_b_a, const Came
 /// predicted NaN where a has no depth).
 cv::Mat photometricPreference(const cv::Mat& grey_a, const cv::Mat& grey_b, const cv::Mat& measured,
                               const cv::Mat& predicted, int radius = 2);
-
-cv::Mat depthDisagreement(const cv::Mat& depth_a, const cv::Mat& depth_b, const cv::Mat& grey_a,
-                          const cv::Mat& grey_b, const cv::Mat& flow, const cv::Mat& depth_flow,
-                          const SE3& T_b_a, const CameraModel& camera, double sigma_a,
-                          double sigma_b, double sigma_z0, double max_grey_error = 12,
-                          int radius = 2);
 
 }  // namespace radslam

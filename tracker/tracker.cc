@@ -83,7 +83,11 @@ Tracker::Impl::Impl(const TrackerParams& params, TrackerMode m)
   refine_options.iterations = p.refine_iterations;
   refine_options.max_shift_px = p.refine_max_shift_px;
   refine_options.brightness_offset = p.refine_brightness_offset;
-  frame_warm_start = p.frame_flow_warp ? WarmStart::kWarp : WarmStart::kCoarse;
+  // Motion segmentation judges the residual a warped flow leaves; camera tracking does better
+  // with the coarse start (fr1/rpy mono orientation 2.38 -> 2.33 deg) and needs no warp.
+  const bool warp =
+      p.frame_flow_start == "warp" || (p.frame_flow_start == "auto" && p.motion_segmentation);
+  frame_warm_start = warp ? WarmStart::kWarp : WarmStart::kCoarse;
   tolerance.rotation_rad = p.resend_rotation_deg * M_PI / 180.0;
   tolerance.translation_rel = p.resend_translation_rel;
   tolerance.inv_depth_rel = p.resend_inv_depth_rel;
@@ -279,7 +283,7 @@ KeyframeData Tracker::Impl::newKeyframeData(const Frame& frame, const PreparedIm
   kf.ba.T_world_cam = T_world_cam;
   if (mode == TrackerMode::kRgbd) {
     const cv::Mat z = sensorDepthToGrid(image.depth, g.cell, p.depth_min_cell_fraction,
-                                        p.depth_min_m, p.depth_max_m);
+                                        p.depth_min_m, p.depth_max_m, moving);
     depthPrior(z, p.depth_sigma_a, p.depth_sigma_b, p.depth_sigma_z0, &kf.sensor_inv_depth,
                &kf.sensor_inv_depth_var);
   }

@@ -62,10 +62,12 @@ struct TrackerParams {
   int flow_patch_size = 8;
   int flow_patch_stride = 4;
   bool flow_spatial_propagation = true;
-  // Warm starts (tracker/frontend_flow.h WarmStart): frames' flow is warped by the motion
-  // model's prediction when frame_flow_warp is set (else DIS starts from it coarse); keyframe
-  // pairs start coarse in the first flow/BA round and are warped by BA's prediction after.
-  bool frame_flow_warp = true;
+  // Warm starts (tracker/frontend_flow.h WarmStart) of a frame's flow to its keyframe:
+  // "coarse" (DIS starts from the motion model's prediction at its coarsest level), "warp"
+  // (the frame is warped by the prediction and DIS measures the residual) or "auto": warp when
+  // motion segmentation judges that flow, coarse otherwise. Keyframe pairs start coarse in the
+  // first flow/BA round and are warped by BA's prediction after.
+  std::string frame_flow_start = "auto";
   double flow_warp_smoothing_px = 12;  // working px, Gaussian sigma of the warp
   bool frame_backward_flow = false;    // forward-backward check on per-frame flow (one more flow)
   double conf_sigma0_px = 0.05;        // grid px (see tracker/frontend_flow.h)
@@ -83,7 +85,7 @@ struct TrackerParams {
 
   // Keyframes and window.
   double keyframe_flow_px = 2.5;      // grid px, mean parallax to the last keyframe
-  double keyframe_rotation_px = 8.0;  // grid px, mean flow of the rotation alone
+  double keyframe_rotation_px = 7.0;  // grid px, mean flow of the rotation alone
   double keyframe_min_valid = 0.4;    // fraction of tracked pixels below which a keyframe is made
   // RGB-D and stereo: translation / median keyframe depth that makes a keyframe.
   double keyframe_baseline_ratio = 0.1;

@@ -61,6 +61,9 @@ void validateTrackerParams(const TrackerParams& p) {
   check(p.grid_cell >= 2 && p.grid_cell <= 32, "grid_cell must be in [2, 32]");
   check(p.flow_preset == "ultrafast" || p.flow_preset == "fast" || p.flow_preset == "medium",
         "flow_preset must be ultrafast, fast or medium");
+  check(p.frame_flow_start == "auto" || p.frame_flow_start == "warp" ||
+            p.frame_flow_start == "coarse",
+        "frame_flow_start must be auto, warp or coarse");
   check(p.flow_finest_scale >= 0 && p.flow_finest_scale <= 6,
         "flow_finest_scale must be in [0, 6]");
   check(p.flow_variational_iterations >= 0, "flow_variational_iterations must be >= 0");
@@ -150,7 +153,7 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("flow_patch_size", &p.flow_patch_size);
   r.get("flow_patch_stride", &p.flow_patch_stride);
   r.get("flow_spatial_propagation", &p.flow_spatial_propagation);
-  r.get("frame_flow_warp", &p.frame_flow_warp);
+  r.get("frame_flow_start", &p.frame_flow_start);
   r.get("flow_warp_smoothing_px", &p.flow_warp_smoothing_px);
   r.get("frame_backward_flow", &p.frame_backward_flow);
   r.get("conf_sigma0_px", &p.conf_sigma0_px);

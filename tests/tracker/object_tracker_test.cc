@@ -49,7 +49,7 @@ TEST(ObjectTracker, MovingMaskGrowsByTheDilation) {
   camera.fx = camera.fy = 50;
   camera.cx = 31.5;
   camera.cy = 23.5;
-  cv::Mat class_id(48, 64, CV_16UC1, cv::Scalar(1));  // static class 1 (the road)
+  cv::Mat class_id(48, 64, CV_16UC1, cv::Scalar(1));         // static class 1 (the road)
   class_id(cv::Rect(20, 10, 10, 10)).setTo(cv::Scalar(10));  // a car
   const cv::Mat instance(48, 64, CV_16UC1, cv::Scalar(0));
   for (int dilation : {0, 3}) {

@@ -79,7 +79,7 @@ void expectResumedRunIdentical(const std::string& mode, const std::string& scene
                                int split) {
   TrackerParams params;
   params.mode = mode;
-  params.window_size = 4;
+  params.window_size = 3;
   const std::vector<Frame> sequence = sceneFrames(scene, frames);
   Tracker original(params);
   for (int i = 0; i < split; ++i) original.process(sequence[i]);

@@ -333,6 +333,8 @@ TEST(TrackerParams, LoadedFromYamlWithUnknownKeysRejected) {
   }
   EXPECT_THROW(loadTrackerParams(range), std::runtime_error);
   EXPECT_THROW(loadTrackerParams("", {"mode=fisheye"}), std::runtime_error);
+  EXPECT_THROW(loadTrackerParams("", {"frame_flow_start=sideways"}), std::runtime_error);
+  EXPECT_EQ(loadTrackerParams("", {"frame_flow_start=warp"}).frame_flow_start, "warp");
 }
 
 // The node on memq:// (one process): frames in, POSE / KEYFRAME / STATUS out, a bounded queue,
