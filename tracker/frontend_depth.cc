@@ -11,10 +11,9 @@ constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 }  // namespace
 
 cv::Mat sensorDepthToGrid(const cv::Mat& depth, int cell, double min_fraction, double min_m,
-                          double max_m, const cv::Mat& excluded) {
+                          double max_m) {
   CV_Assert(depth.type() == CV_32FC1 && cell >= 1 && depth.cols % cell == 0 &&
             depth.rows % cell == 0);
-  CV_Assert(excluded.empty() || (excluded.type() == CV_8UC1 && excluded.size() == depth.size()));
   cv::Mat out(depth.rows / cell, depth.cols / cell, CV_32FC1, cv::Scalar(0));
   std::vector<float> values;
   values.reserve(cell * cell);
@@ -24,9 +23,8 @@ cv::Mat sensorDepthToGrid(const cv::Mat& depth, int cell, double min_fraction, d
       values.clear();
       for (int y = v * cell; y < (v + 1) * cell; ++y) {
         const float* row = depth.ptr<float>(y);
-        const uint8_t* skip = excluded.empty() ? nullptr : excluded.ptr<uint8_t>(y);
         for (int x = u * cell; x < (u + 1) * cell; ++x) {
-          if (row[x] >= min_m && row[x] <= max_m && !(skip && skip[x])) values.push_back(row[x]);
+          if (row[x] >= min_m && row[x] <= max_m) values.push_back(row[x]);
         }
       }
       if (values.empty() || values.size() < needed) continue;

@@ -13,10 +13,8 @@ namespace radslam {
 /// Sensor depth (CV_32FC1 working resolution, m, 0 = invalid) reduced to the grid: the median
 /// of the valid values (within [min_m, max_m]) of each cell x cell block, 0 where fewer than
 /// min_fraction of its pixels are valid. The median keeps one surface at depth edges.
-/// `excluded` (CV_8UC1, depth's size, optional): pixels left out (moving objects: the cell's
-/// flow comes from its static pixels, so its depth must too).
 cv::Mat sensorDepthToGrid(const cv::Mat& depth, int cell, double min_fraction, double min_m,
-                          double max_m, const cv::Mat& excluded = cv::Mat());
+                          double max_m);
 
 /// Inverse-depth prior from grid depth z (m; 0 = none) with sigma_z = a + b (z - z0)^2 (m):
 /// mean 1/z, variance sigma_z^2 / z^4 (first order); NaN mean and 0 variance where z = 0.

@@ -283,7 +283,7 @@ KeyframeData Tracker::Impl::newKeyframeData(const Frame& frame, const PreparedIm
   kf.ba.T_world_cam = T_world_cam;
   if (mode == TrackerMode::kRgbd) {
     const cv::Mat z = sensorDepthToGrid(image.depth, g.cell, p.depth_min_cell_fraction,
-                                        p.depth_min_m, p.depth_max_m, moving);
+                                        p.depth_min_m, p.depth_max_m);
     depthPrior(z, p.depth_sigma_a, p.depth_sigma_b, p.depth_sigma_z0, &kf.sensor_inv_depth,
                &kf.sensor_inv_depth_var);
   }

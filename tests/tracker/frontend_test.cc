@@ -10,7 +10,6 @@
 
 #include "common/camera.h"
 #include "common/synthetic.h"
-#include "tracker/frontend_depth.h"
 #include "tracker/frontend_flow.h"
 #include "tracker/frontend_refine.h"
 
@@ -513,22 +512,6 @@ TEST(Flow, WarpedWarmStartKeepsTheNearGroundFlow) {
 // A uniform shift of a textured image with a moving patch: cells mostly on the patch, and
 // cells whose pixels land on it in b, get no weight; a cell a quarter on the patch keeps its
 // weight and the flow of its static pixels.
-TEST(MovingMasks, SensorDepthOfACellComesFromItsStaticPixels) {
-  // One 8 x 8 cell: 40 background pixels at 4 m, 24 of a near object at 1 m in its left part.
-  cv::Mat depth(kCell, kCell, CV_32FC1, cv::Scalar(4.0f));
-  cv::Mat object(kCell, kCell, CV_8UC1, cv::Scalar(0));
-  object.colRange(0, 3).setTo(255);
-  depth.setTo(1.0f, object);
-  EXPECT_FLOAT_EQ(sensorDepthToGrid(depth, kCell, 0.3, 0.1, 10.0).at<float>(0, 0), 4.0f);
-  // Object pixels are the majority: without the mask the object's depth wins.
-  object.colRange(0, 5).setTo(255);
-  depth.setTo(1.0f, object);
-  EXPECT_FLOAT_EQ(sensorDepthToGrid(depth, kCell, 0.3, 0.1, 10.0).at<float>(0, 0), 1.0f);
-  EXPECT_FLOAT_EQ(sensorDepthToGrid(depth, kCell, 0.3, 0.1, 10.0, object).at<float>(0, 0), 4.0f);
-  // Too few static pixels left: no depth.
-  EXPECT_FLOAT_EQ(sensorDepthToGrid(depth, kCell, 0.5, 0.1, 10.0, object).at<float>(0, 0), 0.0f);
-}
-
 TEST(MovingMasks, KeepMovingPixelsOutOfTheCorrespondences) {
   CameraModel working;
   working.width = 64;
