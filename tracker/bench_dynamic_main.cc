@@ -477,13 +477,16 @@ int runPipeline(const std::vector<std::string>& scenes, int frames, int width, d
   }
   std::printf(
       "obj, frz: mean share of the image covered by objects of dynamic classes, moving and "
-      "frozen.\ndyn: moving-object pixels kept out of camera tracking, objects tracked; no dyn: "
-      "every "
-      "pixel drives the camera;\nfrozen: the same scene with the objects at their last pose; "
-      "ratio = dyn / frozen (per seed). Object errors in the object frame\n(E = T_o^-1 M_gt^-1 "
-      "M_est T_o), tracker world mapped to the ground truth's by the first camera pose.\nseg: "
-      "masks withheld, the tracker's motion segmentation instead: camera ATE and the mean IoU "
-      "of its moving mask\nwith the true one over the frames where either is non-empty.%s\n",
+      "frozen.\n"
+      "dyn: moving-object pixels kept out of camera tracking, objects tracked; no dyn: every "
+      "pixel drives the camera;\n"
+      "frozen: the same scene with the objects at their last pose; ratio = dyn / frozen (per "
+      "seed). Object errors in the object frame\n"
+      "(E = T_o^-1 M_gt^-1 M_est T_o), tracker world mapped to the ground truth's by the first "
+      "camera pose.\n"
+      "seg: masks withheld, the tracker's motion segmentation instead: camera ATE and the mean "
+      "IoU of its moving mask\n"
+      "with the true one over the frames where either is non-empty.%s\n",
       seeds > 1 ? "\nEvery figure is the median over the seeds." : "");
   return 0;
 }
