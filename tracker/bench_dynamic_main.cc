@@ -8,6 +8,7 @@
 #include <random>
 #include <sstream>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <opencv2/imgcodecs.hpp>
@@ -350,9 +351,9 @@ double dynamicShare(const std::vector<SemanticClass>& classes, const cv::Mat& cl
 }
 
 PipelineScene makePipelineScene(SyntheticConfig config) {
-  const SyntheticScene moving = SyntheticScene::make(config);
+  SyntheticScene moving = SyntheticScene::make(config);
   config.freeze_objects = true;
-  PipelineScene s{moving, SyntheticScene::make(config), {}, {}, {}, {}};
+  PipelineScene s{std::move(moving), SyntheticScene::make(config), {}, {}, {}, {}};
   for (int i = 0; i < config.frames; ++i) {
     s.moving_frames.push_back(s.moving.frame(i));
     s.frozen_frames.push_back(s.frozen.frame(i));

@@ -85,8 +85,7 @@ class ObjectTracker {
 
   /// CV_8UC1 working size, 255 where a pixel belongs to a moving object (the classes and the
   /// objects' state of the frames tracked so far), grown by mask_dilation_px; empty when
-  /// nothing moves. Throws
-  /// std::invalid_argument on masks of the wrong type or size.
+  /// nothing moves. Throws std::invalid_argument on masks of the wrong type or size.
   cv::Mat movingMask(const cv::Mat& instance, const cv::Mat& class_id) const;
 
   /// Tracks the objects from the previous frame given to track() to this one (frames in order)
