@@ -92,6 +92,19 @@ class FrameSource {
   std::unique_ptr<Undistorter> undistorter_;
 };
 
+// One line per reference-depth bin: share of the pixels, L1 and mean signed error.
+void printDepthBins(const char* what, const DepthError& e) {
+  std::printf("  %s depth error by sensor depth:", what);
+  for (int b = 0; b < DepthError::kBins; ++b) {
+    const double n = double(std::max<int64_t>(1, e.bin_pixels[b]));
+    std::printf(" %d%s m %.0f%% L1 %.3f bias %+.3f;", b,
+                b + 1 < DepthError::kBins ? ("-" + std::to_string(b + 1)).c_str() : "+",
+                100.0 * e.bin_pixels[b] / std::max<int64_t>(1, e.pixels), e.bin_abs[b] / n,
+                e.bin_signed[b] / n);
+  }
+  std::printf("\n");
+}
+
 // Pixels with a positive finite depth, over all images.
 double validDepthPixels(const std::vector<cv::Mat>& depths) {
   double n = 0;
@@ -241,7 +254,8 @@ int run(int argc, char** argv) {
 
   Mapper mapper(params);
   std::vector<EvalFrame> kf_frames;
-  std::vector<int32_t> kf_ids;  // of kf_frames
+  std::vector<int32_t> kf_ids;          // of kf_frames
+  std::vector<cv::Mat> kf_input_depth;  // of kf_frames: the depth the mapper was given
   for (size_t k = 0; k < kf_index.size(); ++k) {
     std::optional<EvalFrame> f = frames->load(kf_index[k]);
     if (!f) continue;
@@ -256,6 +270,7 @@ int run(int argc, char** argv) {
     kf.depth_var = kf_var[k];
     mapper.addKeyframe(kf);
     kf_ids.push_back(kf.keyframe_id);
+    kf_input_depth.push_back(kf.depth);
     // Sensor depth as the reference for the keyframes' depth error.
     kf_frames.push_back(std::move(*f));
   }
@@ -365,6 +380,16 @@ int run(int argc, char** argv) {
               kf_depth_err.l1(), 100 * kf_depth_err.coverage());
   std::printf("  held out:  PSNR %.2f dB, depth L1 %.4f m (coverage %.1f%%)\n", psnr_held,
               held_depth_err.l1(), 100 * held_depth_err.coverage());
+  printDepthBins("keyframe", kf_depth_err);
+  if (source != "oracle") {
+    DepthError input_err;  // the keyframe depth the mapper was given
+    for (size_t k = 0; k < kf_frames.size(); ++k)
+      if (!kf_frames[k].depth.empty())
+        input_err += depthError(kf_input_depth[k], kf_frames[k].depth);
+    std::printf("  input keyframe depth: L1 %.4f m (coverage %.1f%%)\n", input_err.l1(),
+                100 * input_err.coverage());
+    printDepthBins("input", input_err);
+  }
   std::printf("  held out at the field's own exposure (the gauge keyframe's): PSNR %.2f dB\n",
               psnr_held_field);
   std::printf("  peak RSS %.0f MB\n", rss);

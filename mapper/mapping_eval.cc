@@ -32,6 +32,11 @@ DepthError& DepthError::operator+=(const DepthError& o) {
   sum_abs += o.sum_abs;
   pixels += o.pixels;
   valid += o.valid;
+  for (int b = 0; b < kBins; ++b) {
+    bin_abs[b] += o.bin_abs[b];
+    bin_signed[b] += o.bin_signed[b];
+    bin_pixels[b] += o.bin_pixels[b];
+  }
   return *this;
 }
 
@@ -47,8 +52,13 @@ DepthError depthError(const cv::Mat& rendered, const cv::Mat& reference) {
       if (!(r[x] > 0) || !std::isfinite(r[x])) continue;
       ++e.valid;
       if (!(d[x] > 0) || !std::isfinite(d[x])) continue;
-      e.sum_abs += std::abs(double(d[x]) - r[x]);
+      const double error = double(d[x]) - r[x];
+      const int bin = std::min(DepthError::kBins - 1, static_cast<int>(r[x]));
+      e.sum_abs += std::abs(error);
       ++e.pixels;
+      e.bin_abs[bin] += std::abs(error);
+      e.bin_signed[bin] += error;
+      ++e.bin_pixels[bin];
     }
   }
   return e;

@@ -24,6 +24,11 @@ struct DepthError {
   double sum_abs = 0;  // m, over `pixels`
   int64_t pixels = 0;  // reference valid and rendered depth known
   int64_t valid = 0;   // reference valid (> 0, finite)
+  // The same by reference depth: bin b holds [b, b + 1) m, the last one everything beyond.
+  static constexpr int kBins = 4;
+  double bin_abs[kBins] = {};
+  double bin_signed[kBins] = {};  // sum of rendered - reference (m)
+  int64_t bin_pixels[kBins] = {};
   double l1() const { return pixels > 0 ? sum_abs / pixels : 0; }
   double coverage() const { return valid > 0 ? double(pixels) / valid : 0; }
   DepthError& operator+=(const DepthError& o);

@@ -40,6 +40,23 @@ TEST(MappingEval, PsnrAndDepthError) {
   EXPECT_EQ(e.pixels, 2);
   EXPECT_NEAR(e.l1(), 0.5, 1e-9);
   EXPECT_NEAR(e.coverage(), 2.0 / 3, 1e-9);
+  // Both counted pixels have reference 2 m: bin [2, 3), error +0.5 m.
+  EXPECT_EQ(e.bin_pixels[2], 2);
+  EXPECT_NEAR(e.bin_signed[2], 1.0, 1e-9);
+  EXPECT_NEAR(e.bin_abs[2], 1.0, 1e-9);
+
+  // Bins by reference depth, the last one open: 0.5 m -> 0, 7 m -> 3; signed errors kept.
+  cv::Mat far_truth = (cv::Mat_<float>(1, 2) << 0.5f, 7.f);
+  cv::Mat far_render = (cv::Mat_<float>(1, 2) << 0.6f, 6.f);
+  DepthError f = depthError(far_render, far_truth);
+  f += e;
+  EXPECT_EQ(f.pixels, 4);
+  EXPECT_EQ(f.bin_pixels[0], 1);
+  EXPECT_EQ(f.bin_pixels[3], 1);
+  EXPECT_NEAR(f.bin_signed[0], 0.1, 1e-6);
+  EXPECT_NEAR(f.bin_signed[3], -1.0, 1e-6);
+  EXPECT_NEAR(f.bin_abs[3], 1.0, 1e-6);
+  EXPECT_EQ(f.bin_pixels[2], 2);
 }
 
 TEST(MappingEval, PoseAtInterpolatesWithinGaps) {
