@@ -153,10 +153,12 @@ int run(int argc, char** argv) {
       const TrackerStats& s = out.stats;
       std::fprintf(stderr,
                    "  frame %d: %s, tracked %.2f, flow %.2f px, parallax %.2f px, %d keyframes, "
-                   "window %d, %d edges, BA cost %.4g, align %.2f deg, kf BA %.2f deg, %.1f ms\n",
+                   "window %d, %d edges, BA cost %.4g, align %.2f deg, kf BA %.2f deg, %.1f ms "
+                   "(flow %.1f, BA %.1f)\n",
                    i, out.has_pose ? trackingStateName(out.pose.state) : "no pose",
                    s.valid_fraction, s.mean_flow_px, s.mean_parallax_px, s.keyframes, s.window_size,
-                   s.edges, s.ba_cost, s.alignment_deg, s.keyframe_ba_deg, s.frame_ms);
+                   s.edges, s.ba_cost, s.alignment_deg, s.keyframe_ba_deg, s.frame_ms, s.flow_ms,
+                   s.ba_ms);
     } else if (!quiet && (frames % 20 == 0)) {
       std::cerr << "  frame " << i << ": " << out.stats.keyframes << " keyframes, flow "
                 << out.stats.flow_ms << " ms, BA " << out.stats.ba_ms << " ms, frame "

@@ -93,6 +93,7 @@ Tracker::Impl::Impl(const TrackerParams& params, TrackerMode m)
   tolerance.inv_depth_rel = p.resend_inv_depth_rel;
   tolerance.min_keyframes_between = p.resend_min_keyframes;
   ba_options.max_iterations = p.ba_iterations;
+  ba_options.function_tolerance = p.ba_function_tolerance;
   ba_options.robust_kernel = parseRobustKernel(p.robust_kernel);
   ba_options.robust_scale = p.robust_scale;
   ba_options.min_depth_ratio = p.min_depth_ratio;

@@ -105,7 +105,11 @@ struct TrackerParams {
   // time for its depths. Monocular KITTI 07, mean Sim3 ATE over six start frames: 0.50 m
   // without, 0.27 m with.
   bool keep_departed_edges = true;
-  int ba_iterations = 4;        // Levenberg-Marquardt iterations per BA call
+  int ba_iterations = 4;  // Levenberg-Marquardt iterations per BA call
+  // BA stops early when an accepted step lowers the cost by less than this fraction: later
+  // steps move the estimate less than the flow noise (fr1/rpy mono 31 -> 33 frames/s, same
+  // accuracy; docs/tracker.md).
+  double ba_function_tolerance = 1e-2;
   int final_ba_iterations = 8;  // in finish()
   // Global BA in finish(): every keyframe that kept its image (loop_max_kept_images) gets flow
   // edges with its global_max_partners most overlapping others (overlap > global_min_overlap,

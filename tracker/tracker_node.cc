@@ -179,6 +179,7 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("loop_max_kept_images", &p.loop_max_kept_images);
   r.get("keep_departed_edges", &p.keep_departed_edges);
   r.get("ba_iterations", &p.ba_iterations);
+  r.get("ba_function_tolerance", &p.ba_function_tolerance);
   r.get("final_ba_iterations", &p.final_ba_iterations);
   r.get("global_ba_iterations", &p.global_ba_iterations);
   r.get("global_min_overlap", &p.global_min_overlap);
