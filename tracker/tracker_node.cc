@@ -90,6 +90,7 @@ void validateTrackerParams(const TrackerParams& p) {
   check(p.loop_max_kept_images >= 0, "loop_max_kept_images must be >= 0");
   check(p.ba_iterations >= 1 && p.final_ba_iterations >= 0,
         "ba_iterations >= 1, final_ba_iterations >= 0");
+  check(p.ba_function_tolerance >= 0, "ba_function_tolerance >= 0");
   check(p.global_ba_iterations >= 0 && p.global_max_partners >= 0 && p.global_min_overlap >= 0,
         "global_ba_iterations, global_max_partners and global_min_overlap must be >= 0");
   check(p.robust_kernel == "huber" || p.robust_kernel == "cauchy",
