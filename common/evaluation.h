@@ -4,6 +4,7 @@
 #pragma once
 
 #include <string>
+#include <vector>
 
 #include "common/lie.h"
 #include "common/trajectory.h"
@@ -43,6 +44,9 @@ TrajectoryErrors evaluateTrajectory(const Trajectory& estimate, const Trajectory
 /// stamps are the row indices. Throws std::runtime_error naming the file.
 Trajectory loadTrajectory(const std::string& path, const std::string& format,
                           const std::string& times_path = "");
+
+/// Median of the values (mean of the two middle ones for an even count); 0 when empty.
+double median(std::vector<double> values);
 
 /// A small aligned text table of the errors, one quantity per line.
 std::string formatErrorsTable(const TrajectoryErrors& errors);

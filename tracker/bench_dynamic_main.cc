@@ -68,10 +68,7 @@ struct Stats {
   }
   static double median(std::vector<double> v) {  // of the values that are not NaN
     v.erase(std::remove_if(v.begin(), v.end(), [](double x) { return std::isnan(x); }), v.end());
-    if (v.empty()) return NAN;
-    std::sort(v.begin(), v.end());
-    const size_t n = v.size();
-    return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+    return v.empty() ? NAN : radslam::median(std::move(v));
   }
 };
 
