@@ -105,6 +105,37 @@ void printDepthBins(const char* what, const DepthError& e) {
   std::printf("\n");
 }
 
+// Is an input depth's variance informative? Its errors against the sensor by thirds of the
+// relative sigma, and the share within 2 sigma (the sensor's own noise not counted).
+void printVarianceRanking(const std::vector<EvalFrame>& frames, const std::vector<cv::Mat>& depth,
+                          const std::vector<cv::Mat>& var) {
+  std::vector<std::pair<float, float>> rel_sigma_error;
+  int64_t inside = 0;
+  for (size_t k = 0; k < frames.size(); ++k) {
+    const cv::Mat& ref = frames[k].depth;
+    if (ref.empty()) continue;
+    for (int y = 0; y < ref.rows; ++y)
+      for (int x = 0; x < ref.cols; ++x) {
+        const float r = ref.at<float>(y, x), d = depth[k].at<float>(y, x);
+        const float v = var[k].at<float>(y, x);
+        if (!(r > 0) || !(d > 0) || !std::isfinite(v)) continue;
+        const float e = std::abs(d - r), sigma = std::sqrt(v);
+        rel_sigma_error.emplace_back(sigma / d, e);
+        inside += e <= 2 * sigma;
+      }
+  }
+  std::sort(rel_sigma_error.begin(), rel_sigma_error.end());
+  const size_t n3 = rel_sigma_error.size() / 3;
+  std::printf("  input depth within 2 sigma: %.1f%%; L1 by thirds of sigma/depth:",
+              100.0 * inside / std::max<size_t>(1, rel_sigma_error.size()));
+  for (int t = 0; t < 3 && n3 > 0; ++t) {
+    double sum = 0;
+    for (size_t i = t * n3; i < (t + 1) * n3; ++i) sum += rel_sigma_error[i].second;
+    std::printf(" %.3f (sigma/depth <= %.3f)", sum / n3, rel_sigma_error[(t + 1) * n3 - 1].first);
+  }
+  std::printf("\n");
+}
+
 // Pixels with a positive finite depth, over all images.
 double validDepthPixels(const std::vector<cv::Mat>& depths) {
   double n = 0;
@@ -391,33 +422,7 @@ int run(int argc, char** argv) {
     std::printf("  input keyframe depth: L1 %.4f m (coverage %.1f%%)\n", input_err.l1(),
                 100 * input_err.coverage());
     printDepthBins("input", input_err);
-    // Is the variance informative? Errors against the sensor by thirds of the relative sigma,
-    // and the share within 2 sigma (the sensor's own noise not counted).
-    std::vector<std::pair<float, float>> rel_sigma_error;
-    int64_t inside = 0;
-    for (size_t k = 0; k < kf_frames.size(); ++k) {
-      const cv::Mat& ref = kf_frames[k].depth;
-      if (ref.empty()) continue;
-      for (int y = 0; y < ref.rows; ++y)
-        for (int x = 0; x < ref.cols; ++x) {
-          const float r = ref.at<float>(y, x), d = kf_input_depth[k].at<float>(y, x);
-          const float var = kf_input_var[k].at<float>(y, x);
-          if (!(r > 0) || !(d > 0) || !std::isfinite(var)) continue;
-          const float e = std::abs(d - r), sigma = std::sqrt(var);
-          rel_sigma_error.emplace_back(sigma / d, e);
-          inside += e <= 2 * sigma;
-        }
-    }
-    std::sort(rel_sigma_error.begin(), rel_sigma_error.end());
-    const size_t n3 = rel_sigma_error.size() / 3;
-    std::printf("  input depth within 2 sigma: %.1f%%; L1 by thirds of sigma/depth:",
-                100.0 * inside / std::max<size_t>(1, rel_sigma_error.size()));
-    for (int t = 0; t < 3 && n3 > 0; ++t) {
-      double sum = 0;
-      for (size_t i = t * n3; i < (t + 1) * n3; ++i) sum += rel_sigma_error[i].second;
-      std::printf(" %.3f (sigma/depth <= %.3f)", sum / n3, rel_sigma_error[(t + 1) * n3 - 1].first);
-    }
-    std::printf("\n");
+    printVarianceRanking(kf_frames, kf_input_depth, kf_input_var);
   }
   std::printf("  held out at the field's own exposure (the gauge keyframe's): PSNR %.2f dB\n",
               psnr_held_field);
