@@ -442,10 +442,12 @@ int TrackerNode::run() {
       republish_all_ = false;
       republish_ids_.clear();
       std::cerr << "radslam-tracker: re-publishing " << keyframes.size() << " keyframes\n";
+      const bool any = !keyframes.empty();
       republish_queue_.insert(republish_queue_.end(), std::make_move_iterator(keyframes.begin()),
                               std::make_move_iterator(keyframes.end()));
-      // Their new versions are on record: a tracker resumed later never sends one again.
-      if (checkpointing()) saveCheckpoint();
+      // Their new versions are on record: a tracker resumed later never sends one again. (A
+      // request before the first keyframe changes nothing: no checkpoint of an empty tracker.)
+      if (checkpointing() && any) saveCheckpoint();
     }
     if (rewind_from_ >= 0 && secondsSince(last_rewind_request_) >= kRewindRequestPeriodS) {
       Control rewind;
