@@ -12,6 +12,7 @@
 #include <vector>
 
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "common/camera.h"
 #include "common/cli.h"
@@ -46,7 +47,8 @@ const char* kUsage = R"(usage: radslam-bench-dynamic [options]
                      and 10 for streets)
   --segmentation-only  with --pipeline: only the run with masks withheld (its ATE and IoU)
   --mask-dir DIR     with --pipeline: write each frame's true and segmented moving masks there
-                     (DIR/<scene>-<mode>-<frame>.png: true in red, segmented in green)
+                     (DIR/<scene>-<mode>-<frame>.png: true in red, segmented in green,
+                     the frame at half brightness in blue)
   --set KEY=VALUE    with --pipeline: override tracker parameters (comma-separated)
   --seeds N          with --pipeline: run the noise seeds seed..seed+N-1 and print medians
                      (default 1; the camera ATE of one scene varies by 2x from seed to seed)
@@ -282,8 +284,12 @@ PipelineRun runTracker(const SyntheticScene& scene, const std::vector<Frame>& fr
       const cv::Mat est =
           out.moving_mask.empty() ? cv::Mat(size, CV_8UC1, cv::Scalar(0)) : out.moving_mask;
       if (!mask_prefix.empty()) {
+        // Blue: the frame's grey image at half brightness, to see what was flagged.
+        cv::Mat grey;
+        cv::cvtColor(frames[i].color, grey, cv::COLOR_BGR2GRAY);
+        cv::resize(grey, grey, size, 0, 0, cv::INTER_AREA);
         cv::Mat overlay;
-        cv::merge(std::vector<cv::Mat>{cv::Mat::zeros(size, CV_8UC1), est, gt}, overlay);
+        cv::merge(std::vector<cv::Mat>{grey / 2, est, gt}, overlay);
         char index[32];
         std::snprintf(index, sizeof(index), "%04zu", i);
         cv::imwrite(mask_prefix + index + ".png", overlay);

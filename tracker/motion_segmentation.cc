@@ -20,11 +20,12 @@ MotionSegmenter::MotionSegmenter(const MotionSegmentationParams& params)
       !(params.relative_residual >= 0) || params.min_object_pixels < 1 || params.close_px < 0 ||
       !(params.min_overlap > 0 && params.min_overlap <= 1) || params.first_id < 1 ||
       params.first_id > 65000 || !(params.depth_test_sigmas > 0) ||
-      !(params.photometric_margin >= 0)) {
+      !(params.photometric_margin >= 0) ||
+      !(params.weak_fraction > 0 && params.weak_fraction <= 1)) {
     throw std::invalid_argument(
         "motion segmentation: need min_residual_px > 0, depth_sigmas >= 0, relative_residual >= 0, "
         "min_object_pixels >= 1, close_px >= 0, min_overlap in (0, 1], first_id in [1, 65000], "
-        "depth_test_sigmas > 0, photometric_margin >= 0");
+        "depth_test_sigmas > 0, photometric_margin >= 0, weak_fraction in (0, 1]");
   }
 }
 
@@ -79,34 +80,55 @@ cv::Mat photometricPreference(const cv::Mat& grey_a, const cv::Mat& grey_b, cons
 }
 
 cv::Mat depthDisagreement(const cv::Mat& depth_a, const cv::Mat& depth_b, const cv::Mat& grey_a,
-                          const cv::Mat& grey_b, const cv::Mat& flow, const cv::Mat& depth_flow,
-                          const SE3& T_b_a, const CameraModel& camera, double sigma_a,
-                          double sigma_b, double sigma_z0, double max_grey_error, int radius) {
+                          const cv::Mat& grey_b, const cv::Mat& depth_flow, const SE3& T_b_a,
+                          const CameraModel& camera, double sigma_a, double sigma_b,
+                          double sigma_z0, double max_grey_error, int radius) {
   const cv::Size size(camera.width, camera.height);
-  CV_Assert(depth_a.type() == CV_32FC1 && depth_b.type() == CV_32FC1 && flow.type() == CV_32FC2 &&
-            depth_a.size() == size && depth_b.size() == size && flow.size() == size);
+  CV_Assert(depth_a.type() == CV_32FC1 && depth_b.type() == CV_32FC1 && depth_a.size() == size &&
+            depth_b.size() == size);
   CV_Assert(depth_flow.empty() || (depth_flow.type() == CV_32FC1 && depth_flow.size() == size));
   CV_Assert(grey_a.type() == CV_8UC1 && grey_b.type() == CV_8UC1 && grey_a.size() == size &&
             grey_b.size() == size);
   CV_Assert(radius >= 0);
   const int W = size.width, H = size.height;
   const auto sigma = [&](double z) { return sigma_a + sigma_b * (z - sigma_z0) * (z - sigma_z0); };
-  const Mat3 R = T_b_a.rotation();
-  const Vec3 t = T_b_a.translation();
+  // Where each pixel of a lands in b if it is static, and its depth there.
+  cv::Mat landing(size, CV_32SC2, cv::Scalar(-1, -1));
+  cv::Mat z_static(size, CV_32FC1, cv::Scalar(0));
+  cv::Mat z_front(size, CV_32FC1, cv::Scalar(INFINITY));  // b's z-buffer of a's static points
+  for (int y = 0; y < H; ++y) {
+    const float* za = depth_a.ptr<float>(y);
+    for (int x = 0; x < W; ++x) {
+      if (!(za[x] > 0) || !std::isfinite(za[x])) continue;
+      const Vec3 p_b = T_b_a * unproject(camera, Eigen::Vector2d(x, y), za[x]);
+      if (!(p_b.z() > 1e-3)) continue;
+      const Eigen::Vector2d px = project(camera, p_b);
+      const int xb = static_cast<int>(std::lround(px.x()));
+      const int yb = static_cast<int>(std::lround(px.y()));
+      if (!(xb >= 2 && yb >= 2 && xb < W - 2 && yb < H - 2)) continue;
+      landing.at<cv::Vec2i>(y, x) = {xb, yb};
+      z_static.at<float>(y, x) = static_cast<float>(p_b.z());
+      float& front = z_front.at<float>(yb, xb);
+      front = std::min(front, static_cast<float>(p_b.z()));
+    }
+  }
+  // One pixel of slack: the splats leave holes that a nearer surface would otherwise fall through.
+  cv::erode(z_front, z_front, cv::Mat());
   // Per pixel z-score (0 and count 0 where not judged), then window sums.
   cv::Mat score(size, CV_32FC1, cv::Scalar(0)), judged(size, CV_32FC1, cv::Scalar(0));
   for (int y = 0; y < H; ++y) {
-    const float* za = depth_a.ptr<float>(y);
-    const cv::Vec2f* f = flow.ptr<cv::Vec2f>(y);
     const float* df = depth_flow.empty() ? nullptr : depth_flow.ptr<float>(y);
     for (int x = 0; x < W; ++x) {
-      if (!(za[x] > 0) || (df && !std::isfinite(df[x]))) continue;
-      const int xb = static_cast<int>(std::lround(x + f[x][0]));
-      const int yb = static_cast<int>(std::lround(y + f[x][1]));
-      if (!(xb >= 2 && yb >= 2 && xb < W - 2 && yb < H - 2)) continue;  // also NaN flow
-      // A flow that lands on another surface (thin poles, occlusions) compares other depths.
-      if (std::abs(grey_a.at<uint8_t>(y, x) - grey_b.at<uint8_t>(yb, xb)) > max_grey_error)
-        continue;
+      const cv::Vec2i land = landing.at<cv::Vec2i>(y, x);
+      if (land[0] < 0 || (df && !std::isfinite(df[x]))) continue;
+      const int xb = land[0], yb = land[1];
+      // A prediction a pose error moved onto another surface (thin poles) compares other depths.
+      int grey_error = 255;
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx)
+          grey_error = std::min(grey_error, std::abs(grey_a.at<uint8_t>(y, x) -
+                                                     grey_b.at<uint8_t>(yb + dy, xb + dx)));
+      if (grey_error > max_grey_error) continue;
       float lo = INFINITY, hi = 0;
       for (int dy = -2; dy <= 2; ++dy)
         for (int dx = -2; dx <= 2; ++dx) {
@@ -115,11 +137,12 @@ cv::Mat depthDisagreement(const cv::Mat& depth_a, const cv::Mat& depth_b, const 
           hi = std::max(hi, z);
         }
       if (!(lo > 0)) continue;  // a hole next to the landing point
-      const Vec3 p_b = R * unproject(camera, Eigen::Vector2d(x, y), za[x]) + t;
-      const double zb = depth_b.at<float>(yb, xb);
-      const double s_a = sigma(za[x]), s_b = sigma(zb), s_px = 0.25 * (hi - lo);
-      score.at<float>(y, x) =
-          static_cast<float>((zb - p_b.z()) / std::sqrt(s_a * s_a + s_b * s_b + s_px * s_px));
+      const double z_pred = z_static.at<float>(y, x), zb = depth_b.at<float>(yb, xb);
+      const double s_a = sigma(z_pred), s_b = sigma(zb), s_px = 0.25 * (hi - lo);
+      const double s = std::sqrt(s_a * s_a + s_b * s_b + s_px * s_px);
+      // Hidden in b behind another static point of a (the scene occludes it): not judged.
+      if (z_pred - z_front.at<float>(yb, xb) > 3 * s) continue;
+      score.at<float>(y, x) = static_cast<float>((zb - z_pred) / s);
       judged.at<float>(y, x) = 1;
     }
   }
@@ -148,28 +171,56 @@ cv::Mat MotionSegmenter::segment(const cv::Mat& measured, const cv::Mat& predict
             (photo_test.type() == CV_32FC1 && photo_test.size() == measured.size()));
   const float photo_margin = static_cast<float>(params_.photometric_margin);
   const float depth_z_max = static_cast<float>(params_.depth_test_sigmas);
+  const float weak = static_cast<float>(params_.weak_fraction);
   const int W = measured.cols, H = measured.rows;
   const float min_r = static_cast<float>(params_.min_residual_px);
   const float sigmas = static_cast<float>(params_.depth_sigmas);
   const float relative = static_cast<float>(params_.relative_residual);
-  // Pixels of a that the static scene does not explain.
-  cv::Mat moving_a(measured.size(), CV_8UC1, cv::Scalar(0));
+  constexpr float kEdge = 2;  // px of b's border where the flow is not trusted
+  constexpr uint8_t kWeak = 1, kStrong = 2;
+  // The evidence that a pixel of a is not explained by the static scene.
+  cv::Mat evidence(measured.size(), CV_8UC1, cv::Scalar(0));
   for (int y = 0; y < H; ++y) {
     const cv::Vec2f* m = measured.ptr<cv::Vec2f>(y);
     const cv::Vec2f* p = predicted.ptr<cv::Vec2f>(y);
     const float* d = depth_flow.empty() ? nullptr : depth_flow.ptr<float>(y);
     const float* z = depth_test.empty() ? nullptr : depth_test.ptr<float>(y);
     const float* photo = photo_test.empty() ? nullptr : photo_test.ptr<float>(y);
+    uint8_t* e = evidence.ptr<uint8_t>(y);
     for (int x = 0; x < W; ++x) {
-      if (z && std::abs(z[x]) > depth_z_max) moving_a.at<uint8_t>(y, x) = 255;
+      // Comparisons with NaN (not judged) are false.
+      const float z_abs = z ? std::abs(z[x]) : 0.f;
       const float du = m[x][0] - p[x][0], dv = m[x][1] - p[x][1];
+      const float r2 = du * du + dv * dv;
       const float tolerance =
           min_r + relative * std::hypot(p[x][0], p[x][1]) + (d ? sigmas * d[x] : 0.f);
-      const bool photo_ok = !photo || !(photo[x] <= photo_margin);  // NaN: not judged
-      if (du * du + dv * dv > tolerance * tolerance && photo_ok)    // false for NaN
-        moving_a.at<uint8_t>(y, x) = 255;
+      const auto photo_above = [&](float margin) { return !photo || !(photo[x] <= margin); };
+      const bool flow_strong = r2 > tolerance * tolerance && photo_above(photo_margin);
+      const bool flow_weak =
+          r2 > weak * weak * tolerance * tolerance && photo_above(weak * photo_margin);
+      // The static scene carries the pixel out of b: its measured flow may have found nothing to
+      // match (a pole leaving the view), or an object that stays in view (a truck alongside).
+      const float xb = x + p[x][0], yb = y + p[x][1];
+      const bool in_view = xb >= kEdge && yb >= kEdge && xb < W - 1 - kEdge && yb < H - 1 - kEdge;
+      if (z_abs > depth_z_max || (flow_strong && in_view))
+        e[x] = kStrong;
+      else if (z_abs > weak * depth_z_max || flow_weak)
+        e[x] = kWeak;
     }
   }
+  // Hysteresis: weak evidence counts where it connects to strong evidence (the slow side of a
+  // door near its hinge, the part of a truck leaving the view).
+  cv::Mat regions;
+  const int n_regions = cv::connectedComponents(evidence > 0, regions, 8, CV_32S);
+  std::vector<uint8_t> has_strong(n_regions, 0);
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x)
+      if (evidence.at<uint8_t>(y, x) == kStrong) has_strong[regions.at<int>(y, x)] = 1;
+  cv::Mat moving_a(measured.size(), CV_8UC1, cv::Scalar(0));
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x)
+      if (has_strong[regions.at<int>(y, x)] && evidence.at<uint8_t>(y, x))
+        moving_a.at<uint8_t>(y, x) = 255;
   // Moving pixels of a, carried into b along their measured flow.
   cv::Mat moving_b(measured.size(), CV_8UC1, cv::Scalar(0));
   for (int y = 0; y < H; ++y) {

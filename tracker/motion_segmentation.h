@@ -9,7 +9,10 @@
 /// pixel moved by itself; pixels of unknown depth
 /// (sky, beyond the sensor's range) cannot be judged. With depth (RGB-D, stereo), pixels whose
 /// depth in b disagrees with the static prediction move too (depthDisagreement): flow alone misses
-/// motion along the viewing ray. The moving pixels are carried along the measured flow into b,
+/// motion along the viewing ray. Evidence below the thresholds but above weak_fraction of them,
+/// and the flow test of pixels the static scene carries out of b (their flow may have found
+/// nothing to match), count only where they connect to evidence above the thresholds
+/// (hysteresis). The moving pixels are carried along the measured flow into b,
 /// closed, split into connected components, and components smaller than min_object_pixels are
 /// dropped. A component keeps the id of the previous frame's component it overlaps most
 /// (intersection over union at least min_overlap), or gets a new one.
@@ -37,6 +40,9 @@ struct MotionSegmentationParams {
   /// With a photometric test (photometricPreference): a pixel moves by its flow only where the
   /// static prediction matches b worse than the measured flow by more than this (grey levels).
   double photometric_margin = 4.0;
+  /// Weak evidence (every threshold above times this) makes a pixel move only where it connects
+  /// to strong evidence; 1 = only the flow test of pixels the static scene carries out of view.
+  double weak_fraction = 0.7;
 };
 
 class MotionSegmenter {
@@ -72,22 +78,24 @@ class MotionSegmenter {
 
 /// Depth evidence (RGB-D sensor or stereo) of motion along the viewing ray, which flow misses: an
 /// object ahead that drives with the camera stays put in the image while the static scene would
-/// expand. For each pixel of a with depth, the depth the static scene predicts in b (z of T_b_a
-/// p_a) against b's depth where the measured flow lands, in units of their standard deviation:
-/// sensor noise sigma_z = a + b (z - z0)^2 (m) of both, plus b's depth change per pixel around
-/// the landing point (a quarter of the range over 5 x 5 px: flow errors on slanted surfaces and
-/// at depth edges). The z-scores are averaged over a (2 radius + 1)^2 window and returned as
-/// the z-score of that mean (mean times the square root of the count). CV_32FC1, a's size;
-/// NaN where not judged: no depth in a or near the landing point, an untrusted flow
-/// (depth_flow infinite, see MotionSegmenter::segment), a landing outside b, or a grey value
-/// more than max_grey_error from a's (the flow landed on another surface: thin poles,
-/// occlusions). depth_a, depth_b CV_32FC1 (m, 0 = invalid), grey_a, grey_b CV_8UC1, flow
-/// CV_32FC2 a -> b, all of camera's size.
+/// expand. For each pixel of a with depth, the point T_b_a p_a a static scene puts in b: its
+/// depth against b's depth where it projects, in units of their standard deviation: sensor noise
+/// sigma_z = a + b (z - z0)^2 (m) of both, plus b's depth change per pixel around that point (a
+/// quarter of the range over 5 x 5 px: pose errors on slanted surfaces and at depth edges). The
+/// projection, not the measured flow, picks b's pixel: flows that fail on repetitive facades
+/// land on other depths of a slanted wall. The z-scores are averaged over a (2 radius + 1)^2
+/// window and returned as the z-score of that mean (mean times the square root of the count).
+/// CV_32FC1, a's size; NaN where not judged: no depth in a or near the projection, an untrusted
+/// flow (depth_flow infinite, see MotionSegmenter::segment), a projection outside b, a point
+/// that a's other static points hide in b (more than 3 sigma behind b's z-buffer of them: the
+/// background behind a pole the camera passes), or a grey value of b within 1 px of the
+/// projection no closer than max_grey_error to a's (a pose error moved a thin pole's projection
+/// off it). depth_a, depth_b CV_32FC1 (m, 0 = invalid), grey_a, grey_b CV_8UC1, all of camera's
+/// size.
 cv::Mat depthDisagreement(const cv::Mat& depth_a, const cv::Mat& depth_b, const cv::Mat& grey_a,
-                          const cv::Mat& grey_b, const cv::Mat& flow, const cv::Mat& depth_flow,
-                          const SE3& T_b_a, const CameraModel& camera, double sigma_a,
-                          double sigma_b, double sigma_z0, double max_grey_error = 12,
-                          int radius = 2);
+                          const cv::Mat& grey_b, const cv::Mat& depth_flow, const SE3& T_b_a,
+                          const CameraModel& camera, double sigma_a, double sigma_b,
+                          double sigma_z0, double max_grey_error = 12, int radius = 2);
 
 /// The flow a -> b (CV_32FC2 working px, a's size) the static scene makes where a's depth is
 /// measured (depth_a CV_32FC1 m, 0 = unknown; RGB-D sensor or stereo): thin structures keep

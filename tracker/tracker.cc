@@ -139,6 +139,7 @@ void Tracker::Impl::setUpCamera(std::unique_ptr<ImagePreparer> first_preparer) {
     segmentation.min_residual_px = p.motion_residual_px;
     segmentation.photometric_margin = p.motion_photometric_margin;
     segmentation.min_object_pixels = p.motion_min_pixels;
+    segmentation.weak_fraction = p.motion_weak_fraction;
     segmenter = std::make_unique<MotionSegmenter>(segmentation);
   }
   objects =
@@ -451,7 +452,7 @@ void Tracker::Impl::segmentMotion(const KeyframeData& ref, int64_t frame_index,
     const cv::Mat depth_test =
         a.depth.empty() || depth.empty()
             ? cv::Mat()
-            : depthDisagreement(a.depth, depth, a.grey, image.grey, forward, depth_flow,
+            : depthDisagreement(a.depth, depth, a.grey, image.grey, depth_flow,
                                 aligned->T_world_frame.inverse() * a.ba.T_world_cam, g.working,
                                 p.depth_sigma_a, depth_sigma_b, depth_sigma_z0);
     // Most of the image disagreeing means the pose is wrong, not that the scene moves.

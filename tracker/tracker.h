@@ -175,6 +175,9 @@ struct TrackerParams {
   // measured flow by this many grey levels (5 x 5 mean; tracker/motion_segmentation.h
   // photometricPreference); 0 = the flow residual alone.
   double motion_photometric_margin = 4.0;
+  // Evidence above this fraction of the thresholds moves a pixel where it connects to evidence
+  // above them (tracker/motion_segmentation.h): the slow side of a door near its hinge.
+  double motion_weak_fraction = 0.7;
   // Motion is judged against the newest window keyframe at least this many frames old (the
   // last keyframe when none is; 0 = always the last): one made a frame ago has seen little of
   // the motion (the car was missed on every frame after a new keyframe). Older ones make longer

@@ -128,6 +128,8 @@ void validateTrackerParams(const TrackerParams& p) {
         "motion_rounds >= 1, motion_max_fraction in (0, 1]");
   check(p.stereo_disparity_sigma_px > 0, "stereo_disparity_sigma_px > 0");
   check(p.motion_photometric_margin >= 0, "motion_photometric_margin must be >= 0");
+  check(p.motion_weak_fraction > 0 && p.motion_weak_fraction <= 1,
+        "motion_weak_fraction in (0, 1]");
   check(p.motion_min_keyframe_age >= 0, "motion_min_keyframe_age must be >= 0");
   check(p.object_flow_smoothing_px >= 0, "object_flow_smoothing_px must be >= 0");
   parseDynamicClasses(p.dynamic_classes);  // throws naming the bad item
@@ -217,6 +219,7 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("motion_segmentation", &p.motion_segmentation);
   r.get("motion_residual_px", &p.motion_residual_px);
   r.get("motion_photometric_margin", &p.motion_photometric_margin);
+  r.get("motion_weak_fraction", &p.motion_weak_fraction);
   r.get("motion_min_keyframe_age", &p.motion_min_keyframe_age);
   r.get("motion_min_pixels", &p.motion_min_pixels);
   r.get("motion_class_id", &p.motion_class_id);

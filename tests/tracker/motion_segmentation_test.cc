@@ -101,6 +101,11 @@ TEST(MotionSegmenter, PhotometricTestKeepsObjectsAndDropsFailedFlow) {
   EXPECT_NEAR(cv::countNonZero(one), object.area(), 0.1 * object.area());
 }
 
+// A smooth texture: a pose error of a pixel changes it by less than the grey check's 12 levels.
+uint8_t smoothGrey(double x, double y) {
+  return cv::saturate_cast<uint8_t>(128 + 60 * std::sin(0.3 * x) * std::cos(0.25 * y));
+}
+
 // The camera drives 0.3 m forward towards a textured wall 5 m ahead; a 40 x 40 px patch of it
 // (a car ahead) drives along and stays where it was in the image and in depth. Its flow is
 // (almost) what the static scene predicts near the image centre, its depth is not.
@@ -122,53 +127,48 @@ ForwardScene makeForwardScene() {
   s.depth_a = cv::Mat(size, CV_32FC1, cv::Scalar(5.0));
   s.depth_b = cv::Mat(size, CV_32FC1, cv::Scalar(4.7));
   s.depth_b(s.patch).setTo(5.0);
-  s.grey_a = cv::Mat(size, CV_8UC1);
-  cv::randu(s.grey_a, 0, 255);
+  const float scale = 5.0f / 4.7f;  // the static wall expands about the centre
   s.flow = cv::Mat(size, CV_32FC2);
+  s.grey_a = cv::Mat(size, CV_8UC1);
+  s.grey_b = cv::Mat(size, CV_8UC1);
   for (int y = 0; y < size.height; ++y)
     for (int x = 0; x < size.width; ++x) {
-      const float scale = 5.0f / 4.7f;  // the static wall expands about the centre
       s.flow.at<cv::Vec2f>(y, x) = {(x - 80) * (scale - 1), (y - 60) * (scale - 1)};
+      s.grey_a.at<uint8_t>(y, x) = smoothGrey(x, y);
+      // b: the wall's texture expanded, the patch's where it was.
+      const bool in_patch = s.patch.contains(cv::Point(x, y));
+      s.grey_b.at<uint8_t>(y, x) =
+          in_patch ? smoothGrey(x, y) : smoothGrey(80 + (x - 80) / scale, 60 + (y - 60) / scale);
     }
   s.predicted = s.flow.clone();
   s.flow(s.patch).setTo(cv::Scalar(0, 0));
-  // b's image: a's texture carried along the flow (nearest), so every flow checks out.
-  s.grey_b = cv::Mat(size, CV_8UC1, cv::Scalar(0));
-  for (int y = 0; y < size.height; ++y)
-    for (int x = 0; x < size.width; ++x) {
-      const cv::Vec2f f = s.flow.at<cv::Vec2f>(y, x);
-      const int xb = static_cast<int>(std::lround(x + f[0])),
-                yb = static_cast<int>(std::lround(y + f[1]));
-      if (xb >= 0 && yb >= 0 && xb < 160 && yb < 120)
-        s.grey_b.at<uint8_t>(yb, xb) = s.grey_a.at<uint8_t>(y, x);
-    }
   return s;
 }
 
 TEST(DepthDisagreement, FlagsMotionAlongTheRayThatFlowMisses) {
   const ForwardScene s = makeForwardScene();
-  const cv::Mat z = depthDisagreement(s.depth_a, s.depth_b, s.grey_a, s.grey_b, s.flow, cv::Mat(),
-                                      s.T_b_a, s.camera, 0.0012, 0.0019, 0.4);
+  const cv::Mat z = depthDisagreement(s.depth_a, s.depth_b, s.grey_a, s.grey_b, cv::Mat(), s.T_b_a,
+                                      s.camera, 0.0012, 0.0019, 0.4);
   ASSERT_EQ(z.type(), CV_32FC1);
-  // Inside the patch: 0.3 m against sigma_z(5 m) ~ 0.041 m in each depth, over a 5 x 5 window.
-  const float inside = z.at<float>(60, 80);
-  EXPECT_NEAR(inside,
-              0.3 / std::hypot(0.0012 + 0.0019 * 4.6 * 4.6, 0.0012 + 0.0019 * 4.6 * 4.6) * 5, 0.5);
+  // Inside the patch: 0.3 m against sigma_z(4.7 m) and sigma_z(5 m), over a 5 x 5 window.
+  const double s_a = 0.0012 + 0.0019 * 4.3 * 4.3, s_b = 0.0012 + 0.0019 * 4.6 * 4.6;
+  EXPECT_NEAR(z.at<float>(60, 80), 0.3 / std::hypot(s_a, s_b) * 5, 0.5);
   EXPECT_LT(std::abs(z.at<float>(100, 20)), 1.0);  // the static wall
   // Not judged: no depth in a, a landing on another texture, an untrusted flow.
   cv::Mat depth_a = s.depth_a.clone(), grey_b = s.grey_b.clone();
   depth_a.at<float>(100, 20) = 0;
   cv::Mat untrusted(s.depth_a.size(), CV_32FC1, cv::Scalar(0.1));
   untrusted.at<float>(20, 140) = std::numeric_limits<float>::infinity();
-  const cv::Vec2f f = s.flow.at<cv::Vec2f>(20, 20);
-  grey_b.at<uint8_t>(static_cast<int>(std::lround(20 + f[1])),
-                     static_cast<int>(std::lround(20 + f[0]))) ^= 0x80;
-  const cv::Mat holes = depthDisagreement(depth_a, s.depth_b, s.grey_a, grey_b, s.flow, untrusted,
-                                          s.T_b_a, s.camera, 0.0012, 0.0019, 0.4);
+  const cv::Vec2f f = s.predicted.at<cv::Vec2f>(20, 20);
+  const cv::Point landing(static_cast<int>(std::lround(20 + f[0])),
+                          static_cast<int>(std::lround(20 + f[1])));
+  grey_b(cv::Rect(landing - cv::Point(1, 1), cv::Size(3, 3))) += cv::Scalar(100);
+  const cv::Mat holes = depthDisagreement(depth_a, s.depth_b, s.grey_a, grey_b, untrusted, s.T_b_a,
+                                          s.camera, 0.0012, 0.0019, 0.4);
   EXPECT_TRUE(std::isnan(holes.at<float>(100, 20)));
   EXPECT_TRUE(std::isnan(holes.at<float>(20, 140)));
   EXPECT_TRUE(std::isnan(holes.at<float>(20, 20)));
-  EXPECT_FALSE(std::isnan(holes.at<float>(21, 21)));
+  EXPECT_FALSE(std::isnan(holes.at<float>(24, 24)));
 
   // The flow test alone finds nothing; with the depth test the patch is one object.
   MotionSegmentationParams params;
@@ -179,15 +179,90 @@ TEST(DepthDisagreement, FlagsMotionAlongTheRayThatFlowMisses) {
   const cv::Mat instance = with_depth.segment(s.flow, s.predicted, depth_flow, z);
   const cv::Mat object = instance == instance.at<uint16_t>(60, 80);
   EXPECT_GT(instance.at<uint16_t>(60, 80), 0);
-  // The 5 x 5 window widens it by up to 2 px each side.
-  EXPECT_GE(cv::countNonZero(object), 40 * 40 - 40 * 4);
+  // The static prediction of the patch's rim lands on the wall in b: its depth agrees there,
+  // which the 5 x 5 window partly makes up for.
+  EXPECT_GE(cv::countNonZero(object), 36 * 36);
   EXPECT_LE(cv::countNonZero(object), 44 * 44);
   EXPECT_EQ(cv::countNonZero(instance > 0), cv::countNonZero(object));
+}
+
+// The camera moves 0.2 m sideways past a post 2 m away in front of a wall 5 m away: in b the
+// post hides wall pixels that a saw. Their depth in b is the post's, which is what the static
+// scene predicts there: they are occluded, not moving.
+TEST(DepthDisagreement, DoesNotJudgePointsTheStaticSceneHides) {
+  CameraModel camera;
+  camera.width = 160;
+  camera.height = 120;
+  camera.fx = camera.fy = 150;
+  camera.cx = 80;
+  camera.cy = 60;
+  const SE3 T_b_a(SO3(), Vec3(-0.2, 0, 0));  // b is 0.2 m right of a: the scene moves left
+  const cv::Size size(160, 120);
+  const cv::Range post_a(100, 110), post_b(85, 95);  // 15 px left in b, the wall 6 px
+  cv::Mat depth_a(size, CV_32FC1, cv::Scalar(5.0)), depth_b(size, CV_32FC1, cv::Scalar(5.0));
+  depth_a.colRange(post_a).setTo(2.0);
+  depth_b.colRange(post_b).setTo(2.0);
+  const cv::Mat grey(size, CV_8UC1, cv::Scalar(128));  // uniform: the grey check passes
+  const cv::Mat z = depthDisagreement(depth_a, depth_b, grey, grey, cv::Mat(), T_b_a, camera,
+                                      0.0012, 0.0019, 0.4);
+  // Wall pixels of a at x 91..100 land behind the post (x 85..94 in b).
+  for (int x = 92; x <= 99; ++x) EXPECT_TRUE(std::isnan(z.at<float>(60, x))) << "x " << x;
+  // Everything judged agrees with the static scene, the post and the wall next to it included.
+  cv::Mat judged = z == z;
+  double largest = 0;
+  cv::minMaxLoc(cv::abs(z), nullptr, &largest, nullptr, nullptr, judged);
+  EXPECT_LT(largest, 4.0);
+  EXPECT_FALSE(std::isnan(z.at<float>(60, 105)));  // the post
+  EXPECT_FALSE(std::isnan(z.at<float>(60, 80)));   // the wall left of it
+}
+
+// A static scene flowing 3 px right. Object A (strong: it stays put) has a strip of weak evidence
+// next to it (1 px of flow residual: above 0.7 of the 1.3 px tolerance, below it); a patch of
+// the same weak evidence lies apart. At the right edge the static scene carries pixels out of
+// view: a strip there whose flow stays put (a flow that found nothing to match) lies apart,
+// object B's part there joins its in-view part.
+TEST(MotionSegmenter, WeakEvidenceCountsWhereItJoinsStrongEvidence) {
+  const cv::Rect object_a(20, 40, 40, 40), weak_strip(60, 40, 20, 40), weak_patch(100, 5, 30, 30),
+      leaving(154, 5, 6, 40), object_b(120, 60, 40, 40);
+  cv::Mat predicted(120, 160, CV_32FC2, cv::Scalar(3, 0));
+  cv::Mat measured = predicted.clone();
+  measured(object_a).setTo(cv::Scalar(0, 0));
+  measured(weak_strip).setTo(cv::Scalar(2, 0));
+  measured(weak_patch).setTo(cv::Scalar(2, 0));
+  measured(leaving).setTo(cv::Scalar(0, 0));
+  measured(object_b).setTo(cv::Scalar(0, 0));
+  MotionSegmentationParams params;
+  params.min_residual_px = 1.0;
+  params.relative_residual = 0.1;
+  params.min_object_pixels = 100;
+  params.close_px = 0;
+  params.weak_fraction = 0.7;
+  MotionSegmenter segmenter(params);
+  const cv::Mat instance = segmenter.segment(measured, predicted);
+  const uint16_t a = instance.at<uint16_t>(60, 40), b = instance.at<uint16_t>(80, 140);
+  EXPECT_GT(a, 0);
+  EXPECT_GT(b, 0);
+  EXPECT_EQ(cv::countNonZero(instance == a), object_a.area());
+  EXPECT_EQ(cv::countNonZero(instance == b), object_b.area());
+  // The weak strip, carried 2 px right along its measured flow.
+  EXPECT_EQ(cv::countNonZero(instance(weak_strip + cv::Point(2, 0))), weak_strip.area());
+  EXPECT_EQ(cv::countNonZero(instance > 0), object_a.area() + weak_strip.area() + object_b.area());
+  EXPECT_EQ(cv::countNonZero(instance(weak_patch + cv::Point(2, 0))), 0);
+  EXPECT_EQ(cv::countNonZero(instance(leaving)), 0);
+
+  // weak_fraction 1: the weak strip no longer counts; the part of B leaving the view still does.
+  params.weak_fraction = 1.0;
+  MotionSegmenter strong_only(params);
+  const cv::Mat strict = strong_only.segment(measured, predicted);
+  EXPECT_EQ(cv::countNonZero(strict > 0), object_a.area() + object_b.area());
 }
 
 TEST(MotionSegmenter, RejectsBadParameters) {
   MotionSegmentationParams params;
   params.min_residual_px = 0;
+  EXPECT_THROW(MotionSegmenter{params}, std::invalid_argument);
+  params = MotionSegmentationParams();
+  params.weak_fraction = 0;
   EXPECT_THROW(MotionSegmenter{params}, std::invalid_argument);
 }
 
