@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 #include <map>
+#include <optional>
 #include <stdexcept>
 #include <vector>
 
@@ -11,6 +12,7 @@
 
 #include "common/camera.h"
 #include "tracker/frontend_flow.h"
+#include "tracker/joints.h"
 
 namespace radslam {
 
@@ -287,6 +289,57 @@ void MotionSegmenter::load(BinaryReader* in, cv::Size size) {
   if (next_id < params_.first_id) in->fail("bad segmentation id");
   previous_ = previous;
   next_id_ = next_id;
+}
+
+cv::Mat groundPixels(const cv::Mat& depth, const CameraModel& camera, const GroundParams& params) {
+  const int top = depth.rows / 2;
+  const auto point = [&](int u, int v) -> std::optional<Vec3> {
+    const float z = depth.at<float>(v, u);
+    if (!(z > 0 && z < params.max_range_m)) return std::nullopt;
+    return unproject(camera, Eigen::Vector2d(u, v), z);
+  };
+  std::vector<Vec3> points;
+  for (int v = top; v < depth.rows; v += params.stride_px) {
+    for (int u = 0; u < depth.cols; u += params.stride_px) {
+      if (const auto p = point(u, v)) points.push_back(*p);
+    }
+  }
+  PlaneRansacParams ransac;
+  ransac.inlier_threshold = params.inlier_threshold_m;
+  ransac.min_inliers = std::max<int>(3, params.min_inlier_fraction * points.size());
+  const double min_cos = std::cos(params.max_tilt_deg * M_PI / 180);
+  for (int attempt = 0; attempt < 3 && static_cast<int>(points.size()) >= ransac.min_inliers;
+       ++attempt) {
+    PlaneFit fit;
+    try {
+      fit = fitPlaneRansac(points, ransac);
+    } catch (const std::invalid_argument&) {
+      break;  // no plane gathers enough points
+    }
+    const Plane& plane = fit.plane;
+    // Below the camera: the plane crosses the optical centre's downward vertical (+y) at
+    // y = -d / n_y.
+    const bool level = std::abs(plane.normal.y()) >= min_cos;
+    if (level && -plane.d / plane.normal.y() >= params.min_height_m) {
+      cv::Mat ground(depth.size(), CV_8UC1, cv::Scalar(0));
+      for (int v = top; v < depth.rows; ++v) {
+        for (int u = 0; u < depth.cols; ++u) {
+          const auto p = point(u, v);
+          if (p && std::abs(plane.distance(*p)) < params.inlier_threshold_m)
+            ground.at<uint8_t>(v, u) = 255;
+        }
+      }
+      return ground;
+    }
+    std::vector<bool> inlier(points.size(), false);
+    for (int i : fit.inliers) inlier[i] = true;
+    std::vector<Vec3> rest;
+    for (size_t i = 0; i < points.size(); ++i) {
+      if (!inlier[i]) rest.push_back(points[i]);
+    }
+    points = std::move(rest);
+  }
+  return cv::Mat();
 }
 
 }  // namespace radslam

@@ -114,4 +114,22 @@ cv::Mat staticFlowFromDepth(const cv::Mat& depth_a, const SE3& T_b_a, const Came
 cv::Mat photometricPreference(const cv::Mat& grey_a, const cv::Mat& grey_b, const cv::Mat& measured,
                               const cv::Mat& predicted, int radius = 2);
 
+struct GroundParams {
+  double max_range_m = 12;  // points farther than this are noisier than the threshold
+  double inlier_threshold_m = 0.08;
+  double max_tilt_deg = 30;           // normal from the image's vertical axis
+  double min_height_m = 0.3;          // the camera above the plane
+  double min_inlier_fraction = 0.05;  // of the sampled lower-half points
+  int stride_px = 6;
+};
+
+/// The ground the camera stands on, the static parent of objects moving on it (a road, a
+/// floor): the largest plane fitted by RANSAC to depth's lower half (every stride-th pixel
+/// nearer than max_range_m) whose normal lies within max_tilt_deg of the image's vertical axis
+/// and that lies at least min_height_m below the camera; the planes that fail the test are
+/// removed and the fit repeated (a truck's rear, a facade). Returns its pixels in the lower half
+/// (CV_8UC1 255, depth's size); empty when there is none. depth CV_32FC1 (m, 0 = invalid).
+cv::Mat groundPixels(const cv::Mat& depth, const CameraModel& camera,
+                     const GroundParams& params = {});
+
 }  // namespace radslam

@@ -426,6 +426,20 @@ void Tracker::Impl::segmentMotion(const KeyframeData& ref, int64_t frame_index,
   const double depth_sigma_b =
       stereo ? p.stereo_disparity_sigma_px / (g.working.fx * baseline_m) : p.depth_sigma_b;
   const double depth_sigma_z0 = stereo ? 0.0 : p.depth_sigma_z0;
+  // The ground, looked for only when something moves.
+  cv::Mat ground;
+  bool ground_searched = false;
+  const auto ground_moves = [&](const cv::Mat& instance) {
+    if (p.motion_ground_max_moving >= 1 || depth.empty() || cv::countNonZero(instance) == 0)
+      return false;
+    if (!ground_searched) ground = groundPixels(depth, g.working);
+    ground_searched = true;
+    const int ground_count = ground.empty() ? 0 : cv::countNonZero(ground);
+    return ground_count > 0 &&
+           cv::countNonZero(ground & (instance > 0)) > p.motion_ground_max_moving * ground_count;
+  };
+  bool on_ground = false;
+  MotionOnlyResult first_pose;
   // Rounds: an object the first alignment followed biases its pose, so the residuals are taken
   // again at the pose re-aligned without the object.
   for (int round = 0; round < p.motion_rounds; ++round) {
@@ -476,6 +490,29 @@ void Tracker::Impl::segmentMotion(const KeyframeData& ref, int64_t frame_index,
       // everywhere (synthetic truck: 14.6 m ATE); then flow alone judges this round.
       *segmenter = before;
       instance = segmenter->segment(forward, predicted, depth_flow, {}, photo_test);
+    }
+    if (ground_moves(instance)) {
+      *segmenter = before;
+      if (on_ground) {
+        // Aligned on the ground, the ground moves still: keep the first pose.
+        *aligned = first_pose;
+        return;
+      }
+      // The ground is the static parent of what moves on it: when much of it disagrees, the
+      // pose followed an object (a truck alongside, driving with the camera). Align on the
+      // ground alone and judge this round again.
+      const Correspondences c =
+          correspond(ref.grey, ref.gradients, ref.structure, image.grey, tracked->forward,
+                     tracked->backward, ref.moving, ground == 0);
+      const MotionOnlyResult grounded = aligner.align(
+          g.grid, {ref.ba}, {MotionOnlyEdge{0, c.target, c.weight}}, aligned->T_world_frame);
+      if (!grounded.ok) return;
+      first_pose = *aligned;
+      *aligned = grounded;
+      on_ground = true;
+      ++stats.ground_realignments;
+      --round;
+      continue;
     }
     if (too_much(instance)) return;
     const cv::Mat any = instance > 0;

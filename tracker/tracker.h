@@ -189,8 +189,12 @@ struct TrackerParams {
   int motion_rounds = 2;                   // segment, re-align without the objects, segment again
   double stereo_disparity_sigma_px = 0.5;  // working px: stereo depth noise for segmentation
   double motion_max_fraction = 0.5;        // of the image: more moving means the pose is wrong
-  int object_stride = 2;                   // working px between an object's sample points
-  int object_mask_dilation_px = 3;         // working px the moving mask grows by (silhouette edges)
+  // More than this fraction of the ground plane (tracker/motion_segmentation.h groundPixels)
+  // moving means the pose followed an object (a truck alongside driving with the camera): the
+  // frame is aligned on the ground alone and judged again; 1 = never.
+  double motion_ground_max_moving = 0.3;
+  int object_stride = 2;                // working px between an object's sample points
+  int object_mask_dilation_px = 3;      // working px the moving mask grows by (silhouette edges)
   double object_flow_smoothing_px = 4;  // working px (ObjectTrackerParams::flow_warp_smoothing_px)
 
   // Keyframe output (KEYFRAME messages at working resolution).
@@ -222,6 +226,7 @@ struct TrackerStats {
   int lost_frames = 0;          // frames reported LOST so far
   int loop_edges = 0;           // loop edge pairs made so far
   int global_ba_edges = 0;      // flow edges of the global BA in finish()
+  int ground_realignments = 0;  // frames re-aligned on the ground (it moved) so far
   double alignment_deg = 0;     // rotation the alignment moved the frame from its prediction
   double keyframe_ba_deg = 0;   // rotation BA moved a new keyframe from its aligned pose
   bool two_view_init = false;   // the second monocular keyframe came from two-view geometry

@@ -131,6 +131,8 @@ void validateTrackerParams(const TrackerParams& p) {
   check(p.motion_weak_fraction > 0 && p.motion_weak_fraction <= 1,
         "motion_weak_fraction in (0, 1]");
   check(p.motion_min_keyframe_age >= 0, "motion_min_keyframe_age must be >= 0");
+  check(p.motion_ground_max_moving > 0 && p.motion_ground_max_moving <= 1,
+        "motion_ground_max_moving must be in (0, 1]");
   check(p.object_flow_smoothing_px >= 0, "object_flow_smoothing_px must be >= 0");
   parseDynamicClasses(p.dynamic_classes);  // throws naming the bad item
 }
@@ -226,6 +228,7 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("motion_rounds", &p.motion_rounds);
   r.get("stereo_disparity_sigma_px", &p.stereo_disparity_sigma_px);
   r.get("motion_max_fraction", &p.motion_max_fraction);
+  r.get("motion_ground_max_moving", &p.motion_ground_max_moving);
   r.get("object_flow_smoothing_px", &p.object_flow_smoothing_px);
   r.finish();
   try {

@@ -257,6 +257,45 @@ TEST(MotionSegmenter, WeakEvidenceCountsWhereItJoinsStrongEvidence) {
   EXPECT_EQ(cv::countNonZero(strict > 0), object_a.area() + object_b.area());
 }
 
+// A road 1.5 m below the camera, pitched 4 deg, and the rear of a truck 6 m ahead that covers
+// more of the lower half than the road: the largest plane there is not the ground.
+TEST(GroundPixels, FindsTheRoadBesideALargerTruck) {
+  CameraModel camera;
+  camera.width = 160;
+  camera.height = 120;
+  camera.fx = camera.fy = 150;
+  camera.cx = 80;
+  camera.cy = 60;
+  const double pitch = 4 * M_PI / 180, height = 1.5;
+  const Vec3 normal(0, std::cos(pitch), std::sin(pitch));
+  const cv::Rect truck(0, 50, 100, 70);
+  cv::Mat depth(120, 160, CV_32FC1, cv::Scalar(0));
+  cv::Mat road(depth.size(), CV_8UC1, cv::Scalar(0));
+  cv::Mat truck_off_road = road.clone();  // the truck's pixels more than 0.1 m off the road
+  for (int v = 0; v < depth.rows; ++v)
+    for (int u = 0; u < depth.cols; ++u) {
+      const Vec3 ray((u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, 1);
+      if (truck.contains(cv::Point(u, v))) {
+        depth.at<float>(v, u) = 6;
+        truck_off_road.at<uint8_t>(v, u) = std::abs(normal.dot(6 * ray) - height) > 0.1 ? 255 : 0;
+      } else if (normal.dot(ray) > 0) {
+        depth.at<float>(v, u) = static_cast<float>(height / normal.dot(ray));
+        road.at<uint8_t>(v, u) = v >= 60 && depth.at<float>(v, u) < 12 ? 255 : 0;
+      }
+    }
+  const cv::Mat ground = groundPixels(depth, camera);
+  ASSERT_FALSE(ground.empty());
+  ASSERT_GT(cv::countNonZero(road), 1000);
+  EXPECT_GT(cv::countNonZero(ground & road), 0.95 * cv::countNonZero(road));
+  EXPECT_EQ(cv::countNonZero(ground & truck_off_road), 0);
+
+  // Without the road only walls are left: no ground.
+  cv::Mat walls = depth.clone();
+  walls.setTo(cv::Scalar(6), road);
+  walls.setTo(cv::Scalar(0), depth > 6.01f);
+  EXPECT_TRUE(groundPixels(walls, camera).empty());
+}
+
 TEST(MotionSegmenter, RejectsBadParameters) {
   MotionSegmentationParams params;
   params.min_residual_px = 0;
