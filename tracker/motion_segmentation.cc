@@ -51,6 +51,28 @@ cv::Mat staticFlowFromDepth(const cv::Mat& depth_a, const SE3& T_b_a, const Came
   return flow;
 }
 
+cv::Mat flowFromDepthNoise(const cv::Mat& depth_a, const SE3& T_b_a, const CameraModel& camera,
+                           double sigma_a, double sigma_b, double sigma_z0) {
+  const cv::Size size(camera.width, camera.height);
+  CV_Assert(depth_a.type() == CV_32FC1 && depth_a.size() == size);
+  cv::Mat change(size, CV_32FC1, cv::Scalar(std::numeric_limits<float>::infinity()));
+  for (int y = 0; y < size.height; ++y) {
+    const float* z = depth_a.ptr<float>(y);
+    float* c = change.ptr<float>(y);
+    for (int x = 0; x < size.width; ++x) {
+      if (!(z[x] > 0) || !std::isfinite(z[x])) continue;
+      const double sigma_z = sigma_a + sigma_b * (z[x] - sigma_z0) * (z[x] - sigma_z0);
+      const double nearer = 1.0 / (1.0 / z[x] + sigma_z / (double(z[x]) * z[x]));
+      const Eigen::Vector2d px(x, y);
+      const Vec3 p_b = T_b_a * unproject(camera, px, z[x]);
+      const Vec3 q_b = T_b_a * unproject(camera, px, nearer);
+      if (!(p_b.z() > 1e-3) || !(q_b.z() > 1e-3)) continue;
+      c[x] = static_cast<float>((project(camera, p_b) - project(camera, q_b)).norm());
+    }
+  }
+  return change;
+}
+
 cv::Mat photometricPreference(const cv::Mat& grey_a, const cv::Mat& grey_b, const cv::Mat& measured,
                               const cv::Mat& predicted, int radius) {
   CV_Assert(grey_a.type() == CV_8UC1 && grey_b.type() == CV_8UC1 && grey_a.size() == grey_b.size());

@@ -104,6 +104,13 @@ cv::Mat depthDisagreement(const cv::Mat& depth_a, const cv::Mat& depth_b, const 
 cv::Mat staticFlowFromDepth(const cv::Mat& depth_a, const SE3& T_b_a, const CameraModel& camera,
                             const cv::Mat& fallback);
 
+/// How far (working px) the static flow a -> b of each pixel of a moves when its depth is one
+/// sigma nearer in inverse depth, sigma_z = sigma_a + sigma_b (z - sigma_z0)^2 (m): the error
+/// the noise of depth_a (CV_32FC1 m, 0 = unknown) gives staticFlowFromDepth. CV_32FC1, a's size;
+/// +inf where depth_a has no depth or the point falls behind b.
+cv::Mat flowFromDepthNoise(const cv::Mat& depth_a, const SE3& T_b_a, const CameraModel& camera,
+                           double sigma_a, double sigma_b, double sigma_z0);
+
 /// How much worse the static prediction explains b than the measured flow does, per pixel of a
 /// (grey levels): the mean over a (2 radius + 1)^2 window of |b(x + predicted) - a(x)| minus
 /// |b(x + measured) - a(x)|, bilinear in b. Positive where the pixel moved by itself (its

@@ -445,30 +445,50 @@ void Tracker::Impl::segmentMotion(const KeyframeData& ref, int64_t frame_index,
   for (int round = 0; round < p.motion_rounds; ++round) {
     const cv::Mat targets =
         reprojectKeyframe(g.grid, a.ba, aligned->T_world_frame, p.min_depth_ratio);
+    const SE3 T_frame_a = aligned->T_world_frame.inverse() * a.ba.T_world_cam;
     // The flow change a one-sigma inverse-depth error of the keyframe makes (working px);
     // infinite (not judged) without depth or without a trusted flow.
     const cv::Mat targets_shifted =
         reprojectKeyframe(g.grid, shifted, aligned->T_world_frame, p.min_depth_ratio);
     cv::Mat depth_flow_grid(g.gridSize(), CV_32FC1);
+    cv::Mat trusted_grid(g.gridSize(), CV_8UC1);
     for (int v = 0; v < depth_flow_grid.rows; ++v) {
       for (int u = 0; u < depth_flow_grid.cols; ++u) {
         const cv::Vec2f a = targets.at<cv::Vec2f>(v, u), b = targets_shifted.at<cv::Vec2f>(v, u);
         const cv::Vec2f w = unmasked.weight.at<cv::Vec2f>(v, u);
         const float change = g.cell * std::hypot(b[0] - a[0], b[1] - a[1]);
         depth_flow_grid.at<float>(v, u) =
-            std::isfinite(change) && std::isfinite(sigma.at<float>(v, u)) && (w[0] > 0 || w[1] > 0)
-                ? change
-                : kInf;
+            std::isfinite(change) && std::isfinite(sigma.at<float>(v, u)) ? change : kInf;
+        trusted_grid.at<uint8_t>(v, u) = w[0] > 0 || w[1] > 0;
       }
     }
-    cv::Mat depth_flow;
+    cv::Mat depth_flow, trusted;
     cv::resize(depth_flow_grid, depth_flow, g.workingSize(), 0, 0, cv::INTER_NEAREST);
+    cv::resize(trusted_grid, trusted, g.workingSize(), 0, 0, cv::INTER_NEAREST);
+    // Where the keyframe measured its depth the prediction is made from it, so that depth's
+    // noise bounds the prediction's error there as well as BA's marginal does. It also judges
+    // pixels BA leaves to the weak prior (stereo: those that moved when the keyframe was made,
+    // whose marginal is unknown; the truck alongside went unseen on every other keyframe).
+    const cv::Mat noise_flow =
+        a.depth.empty() ? cv::Mat()
+                        : flowFromDepthNoise(a.depth, T_frame_a, g.working, p.depth_sigma_a,
+                                             depth_sigma_b, depth_sigma_z0);
+    for (int y = 0; y < depth_flow.rows; ++y) {
+      float* d = depth_flow.ptr<float>(y);
+      const float* n = noise_flow.empty() ? nullptr : noise_flow.ptr<float>(y);
+      const uint8_t* t = trusted.ptr<uint8_t>(y);
+      for (int x = 0; x < depth_flow.cols; ++x) {
+        if (!t[x])
+          d[x] = kInf;
+        else if (n && std::isfinite(n[x]))
+          d[x] = std::min(d[x], n[x]);
+      }
+    }
     const cv::Mat depth_test =
         a.depth.empty() || depth.empty()
             ? cv::Mat()
-            : depthDisagreement(a.depth, depth, a.grey, image.grey, depth_flow,
-                                aligned->T_world_frame.inverse() * a.ba.T_world_cam, g.working,
-                                p.depth_sigma_a, depth_sigma_b, depth_sigma_z0);
+            : depthDisagreement(a.depth, depth, a.grey, image.grey, depth_flow, T_frame_a,
+                                g.working, p.depth_sigma_a, depth_sigma_b, depth_sigma_z0);
     // Most of the image disagreeing means the pose is wrong, not that the scene moves.
     const auto too_much = [&](const cv::Mat& instance) {
       return cv::countNonZero(instance) > p.motion_max_fraction * instance.total();
@@ -476,10 +496,8 @@ void Tracker::Impl::segmentMotion(const KeyframeData& ref, int64_t frame_index,
     // The prediction at full resolution where the keyframe has measured depth.
     const cv::Mat grid_predicted = predictedFlow(targets, g);
     const cv::Mat predicted =
-        a.depth.empty()
-            ? grid_predicted
-            : staticFlowFromDepth(a.depth, aligned->T_world_frame.inverse() * a.ba.T_world_cam,
-                                  g.working, grid_predicted);
+        a.depth.empty() ? grid_predicted
+                        : staticFlowFromDepth(a.depth, T_frame_a, g.working, grid_predicted);
     const cv::Mat photo_test = p.motion_photometric_margin > 0
                                    ? photometricPreference(a.grey, image.grey, forward, predicted)
                                    : cv::Mat();

@@ -257,6 +257,27 @@ TEST(MotionSegmenter, WeakEvidenceCountsWhereItJoinsStrongEvidence) {
   EXPECT_EQ(cv::countNonZero(strict > 0), object_a.area() + object_b.area());
 }
 
+// A sideways move of t: the flow at depth z is fx t / z, so a depth one sigma nearer in inverse
+// depth changes it by fx t sigma_z / z^2 everywhere; no depth, no bound.
+TEST(FlowFromDepthNoise, SidewaysMoveGivesFxTimesTheInverseDepthSigma) {
+  CameraModel camera;
+  camera.width = 160;
+  camera.height = 120;
+  camera.fx = camera.fy = 150;
+  camera.cx = 80;
+  camera.cy = 60;
+  const double t = 0.1, z = 5, sigma_a = 0.01, sigma_b = 0.002;
+  cv::Mat depth(120, 160, CV_32FC1, cv::Scalar(z));
+  depth(cv::Rect(0, 0, 10, 10)).setTo(0);
+  const SE3 T_b_a(SO3(), Vec3(-t, 0, 0));
+  const cv::Mat change = flowFromDepthNoise(depth, T_b_a, camera, sigma_a, sigma_b, 0.0);
+  ASSERT_EQ(change.type(), CV_32FC1);
+  const double expected = camera.fx * t * (sigma_a + sigma_b * z * z) / (z * z);
+  for (const cv::Point px : {cv::Point(80, 60), cv::Point(150, 110), cv::Point(20, 100)})
+    EXPECT_NEAR(change.at<float>(px), expected, 1e-4 * expected);
+  EXPECT_TRUE(std::isinf(change.at<float>(5, 5)));
+}
+
 // A road 1.5 m below the camera, pitched 4 deg, and the rear of a truck 6 m ahead that covers
 // more of the lower half than the road: the largest plane there is not the ground.
 TEST(GroundPixels, FindsTheRoadBesideALargerTruck) {
