@@ -106,11 +106,22 @@ uint8_t smoothGrey(double x, double y) {
   return cv::saturate_cast<uint8_t>(128 + 60 * std::sin(0.3 * x) * std::cos(0.25 * y));
 }
 
+// 160 x 120 px, 150 px focal length, principal point in the middle.
+CameraModel smallCamera() {
+  CameraModel camera;
+  camera.width = 160;
+  camera.height = 120;
+  camera.fx = camera.fy = 150;
+  camera.cx = 80;
+  camera.cy = 60;
+  return camera;
+}
+
 // The camera drives 0.3 m forward towards a textured wall 5 m ahead; a 40 x 40 px patch of it
 // (a car ahead) drives along and stays where it was in the image and in depth. Its flow is
 // (almost) what the static scene predicts near the image centre, its depth is not.
 struct ForwardScene {
-  CameraModel camera;
+  CameraModel camera = smallCamera();
   SE3 T_b_a = SE3(SO3(), Vec3(0, 0, -0.3));
   cv::Mat depth_a, depth_b, grey_a, grey_b, flow, predicted;
   cv::Rect patch{60, 40, 40, 40};
@@ -118,11 +129,6 @@ struct ForwardScene {
 
 ForwardScene makeForwardScene() {
   ForwardScene s;
-  s.camera.width = 160;
-  s.camera.height = 120;
-  s.camera.fx = s.camera.fy = 150;
-  s.camera.cx = 80;
-  s.camera.cy = 60;
   const cv::Size size(160, 120);
   s.depth_a = cv::Mat(size, CV_32FC1, cv::Scalar(5.0));
   s.depth_b = cv::Mat(size, CV_32FC1, cv::Scalar(4.7));
@@ -190,12 +196,7 @@ TEST(DepthDisagreement, FlagsMotionAlongTheRayThatFlowMisses) {
 // post hides wall pixels that a saw. Their depth in b is the post's, which is what the static
 // scene predicts there: they are occluded, not moving.
 TEST(DepthDisagreement, DoesNotJudgePointsTheStaticSceneHides) {
-  CameraModel camera;
-  camera.width = 160;
-  camera.height = 120;
-  camera.fx = camera.fy = 150;
-  camera.cx = 80;
-  camera.cy = 60;
+  const CameraModel camera = smallCamera();
   const SE3 T_b_a(SO3(), Vec3(-0.2, 0, 0));  // b is 0.2 m right of a: the scene moves left
   const cv::Size size(160, 120);
   const cv::Range post_a(100, 110), post_b(85, 95);  // 15 px left in b, the wall 6 px
@@ -260,12 +261,7 @@ TEST(MotionSegmenter, WeakEvidenceCountsWhereItJoinsStrongEvidence) {
 // A sideways move of t: the flow at depth z is fx t / z, so a depth one sigma nearer in inverse
 // depth changes it by fx t sigma_z / z^2 everywhere; no depth, no bound.
 TEST(FlowFromDepthNoise, SidewaysMoveGivesFxTimesTheInverseDepthSigma) {
-  CameraModel camera;
-  camera.width = 160;
-  camera.height = 120;
-  camera.fx = camera.fy = 150;
-  camera.cx = 80;
-  camera.cy = 60;
+  const CameraModel camera = smallCamera();
   const double t = 0.1, z = 5, sigma_a = 0.01, sigma_b = 0.002;
   cv::Mat depth(120, 160, CV_32FC1, cv::Scalar(z));
   depth(cv::Rect(0, 0, 10, 10)).setTo(0);
@@ -281,12 +277,7 @@ TEST(FlowFromDepthNoise, SidewaysMoveGivesFxTimesTheInverseDepthSigma) {
 // A road 1.5 m below the camera, pitched 4 deg, and the rear of a truck 6 m ahead that covers
 // more of the lower half than the road: the largest plane there is not the ground.
 TEST(GroundPixels, FindsTheRoadBesideALargerTruck) {
-  CameraModel camera;
-  camera.width = 160;
-  camera.height = 120;
-  camera.fx = camera.fy = 150;
-  camera.cx = 80;
-  camera.cy = 60;
+  const CameraModel camera = smallCamera();
   const double pitch = 4 * M_PI / 180, height = 1.5;
   const Vec3 normal(0, std::cos(pitch), std::sin(pitch));
   const cv::Rect truck(0, 50, 100, 70);
