@@ -343,12 +343,19 @@ cv::Mat groundPixels(const cv::Mat& depth, const CameraModel& camera, const Grou
     // y = -d / n_y.
     const bool level = std::abs(plane.normal.y()) >= min_cos;
     if (level && -plane.d / plane.normal.y() >= params.min_height_m) {
+      // The point at depth z of pixel (u, v) is z r with r = ((u - cx) / fx, (v - cy) / fy, 1),
+      // so its distance to the plane is z (n . r) + d, and n . r is linear in u and v.
+      const Vec3& n = plane.normal;
+      const double du = n.x() / camera.fx, dv = n.y() / camera.fy;
+      const double c = n.z() - n.x() * camera.cx / camera.fx - n.y() * camera.cy / camera.fy;
       cv::Mat ground(depth.size(), CV_8UC1, cv::Scalar(0));
       for (int v = top; v < depth.rows; ++v) {
+        const float* z = depth.ptr<float>(v);
+        uint8_t* g = ground.ptr<uint8_t>(v);
         for (int u = 0; u < depth.cols; ++u) {
-          const auto p = point(u, v);
-          if (p && std::abs(plane.distance(*p)) < params.inlier_threshold_m)
-            ground.at<uint8_t>(v, u) = 255;
+          if (!(z[u] > 0 && z[u] < params.max_range_m)) continue;
+          if (std::abs(z[u] * (du * u + dv * v + c) + plane.d) < params.inlier_threshold_m)
+            g[u] = 255;
         }
       }
       return ground;

@@ -127,7 +127,7 @@ struct GroundParams {
   double max_tilt_deg = 30;           // normal from the image's vertical axis
   double min_height_m = 0.3;          // the camera above the plane
   double min_inlier_fraction = 0.05;  // of the sampled lower-half points
-  int stride_px = 6;
+  int stride_px = 6;                  // between the pixels RANSAC samples
 };
 
 /// The ground the camera stands on, the static parent of objects moving on it (a road, a
