@@ -16,6 +16,39 @@
 
 namespace radslam {
 
+namespace {
+
+// Carries pixels of a into b along their rays: p_b = z R r(x, y) + t. R r is linear in x along
+// a row, which saves unprojecting every pixel (a 640 x 480 image: 16 -> 3 ms).
+class RayTransfer {
+ public:
+  RayTransfer(const SE3& T_b_a, const CameraModel& camera)
+      : camera_(camera),
+        R_(T_b_a.rotation()),
+        t_(T_b_a.translation()),
+        step_(R_.col(0) / camera.fx) {}
+
+  // The rotated ray of pixel (0, y); ray(x) then gives the rest of the row.
+  void setRow(int y) {
+    ray_0_ = R_ * Vec3(-camera_.cx / camera_.fx, (y - camera_.cy) / camera_.fy, 1.0);
+  }
+  Vec3 ray(int x) const { return ray_0_ + x * step_; }
+  Vec3 point(const Vec3& ray, double z) const { return z * ray + t_; }
+  Eigen::Vector2d pixel(const Vec3& p_b) const {
+    return {camera_.fx * p_b.x() / p_b.z() + camera_.cx,
+            camera_.fy * p_b.y() / p_b.z() + camera_.cy};
+  }
+
+ private:
+  const CameraModel& camera_;
+  const Mat3 R_;
+  const Vec3 t_;
+  const Vec3 step_;
+  Vec3 ray_0_ = Vec3::Zero();
+};
+
+}  // namespace
+
 MotionSegmenter::MotionSegmenter(const MotionSegmentationParams& params)
     : params_(params), next_id_(params.first_id) {
   if (!(params.min_residual_px > 0) || !(params.depth_sigmas >= 0) ||
@@ -37,14 +70,16 @@ cv::Mat staticFlowFromDepth(const cv::Mat& depth_a, const SE3& T_b_a, const Came
   CV_Assert(depth_a.type() == CV_32FC1 && depth_a.size() == size && fallback.type() == CV_32FC2 &&
             fallback.size() == size);
   cv::Mat flow = fallback.clone();
+  RayTransfer transfer(T_b_a, camera);
   for (int y = 0; y < size.height; ++y) {
     const float* z = depth_a.ptr<float>(y);
     cv::Vec2f* f = flow.ptr<cv::Vec2f>(y);
+    transfer.setRow(y);
     for (int x = 0; x < size.width; ++x) {
       if (!(z[x] > 0) || !std::isfinite(z[x])) continue;
-      const Vec3 p_b = T_b_a * unproject(camera, Eigen::Vector2d(x, y), z[x]);
+      const Vec3 p_b = transfer.point(transfer.ray(x), z[x]);
       if (!(p_b.z() > 1e-3)) continue;
-      const Eigen::Vector2d px = project(camera, p_b);
+      const Eigen::Vector2d px = transfer.pixel(p_b);
       f[x] = cv::Vec2f(static_cast<float>(px.x() - x), static_cast<float>(px.y() - y));
     }
   }
@@ -56,18 +91,19 @@ cv::Mat flowFromDepthNoise(const cv::Mat& depth_a, const SE3& T_b_a, const Camer
   const cv::Size size(camera.width, camera.height);
   CV_Assert(depth_a.type() == CV_32FC1 && depth_a.size() == size);
   cv::Mat change(size, CV_32FC1, cv::Scalar(std::numeric_limits<float>::infinity()));
+  RayTransfer transfer(T_b_a, camera);
   for (int y = 0; y < size.height; ++y) {
     const float* z = depth_a.ptr<float>(y);
     float* c = change.ptr<float>(y);
+    transfer.setRow(y);
     for (int x = 0; x < size.width; ++x) {
       if (!(z[x] > 0) || !std::isfinite(z[x])) continue;
       const double sigma_z = sigma_a + sigma_b * (z[x] - sigma_z0) * (z[x] - sigma_z0);
       const double nearer = 1.0 / (1.0 / z[x] + sigma_z / (double(z[x]) * z[x]));
-      const Eigen::Vector2d px(x, y);
-      const Vec3 p_b = T_b_a * unproject(camera, px, z[x]);
-      const Vec3 q_b = T_b_a * unproject(camera, px, nearer);
+      const Vec3 ray = transfer.ray(x);
+      const Vec3 p_b = transfer.point(ray, z[x]), q_b = transfer.point(ray, nearer);
       if (!(p_b.z() > 1e-3) || !(q_b.z() > 1e-3)) continue;
-      c[x] = static_cast<float>((project(camera, p_b) - project(camera, q_b)).norm());
+      c[x] = static_cast<float>((transfer.pixel(p_b) - transfer.pixel(q_b)).norm());
     }
   }
   return change;
@@ -120,13 +156,15 @@ cv::Mat depthDisagreement(const cv::Mat& depth_a, const cv::Mat& depth_b, const 
   cv::Mat landing(size, CV_32SC2, cv::Scalar(-1, -1));
   cv::Mat z_static(size, CV_32FC1, cv::Scalar(0));
   cv::Mat z_front(size, CV_32FC1, cv::Scalar(INFINITY));  // b's z-buffer of a's static points
+  RayTransfer transfer(T_b_a, camera);
   for (int y = 0; y < H; ++y) {
     const float* za = depth_a.ptr<float>(y);
+    transfer.setRow(y);
     for (int x = 0; x < W; ++x) {
       if (!(za[x] > 0) || !std::isfinite(za[x])) continue;
-      const Vec3 p_b = T_b_a * unproject(camera, Eigen::Vector2d(x, y), za[x]);
+      const Vec3 p_b = transfer.point(transfer.ray(x), za[x]);
       if (!(p_b.z() > 1e-3)) continue;
-      const Eigen::Vector2d px = project(camera, p_b);
+      const Eigen::Vector2d px = transfer.pixel(p_b);
       const int xb = static_cast<int>(std::lround(px.x()));
       const int yb = static_cast<int>(std::lround(px.y()));
       if (!(xb >= 2 && yb >= 2 && xb < W - 2 && yb < H - 2)) continue;
