@@ -377,7 +377,7 @@ PipelineScene makePipelineScene(SyntheticConfig config) {
 struct PipelineRow {
   double dyn = NAN, no_dyn = NAN, frozen = NAN, frozen_no_dyn = NAN;  // camera ATE, m
   double joint_t = NAN, joint_r = NAN, free_t = NAN, free_r = NAN;    // m, deg
-  double pairs = 0, fps = 0, seg_ate = NAN, iou = NAN;
+  double pairs = 0, fps = 0, seg_ate = NAN, iou = NAN, seg_fps = NAN;
   double moving_share = NAN, frozen_share = NAN;  // of the image, see PipelineScene
 };
 
@@ -391,9 +391,10 @@ int runPipeline(const std::vector<std::string>& scenes, int frames, int width, d
       frames, width, width * 3 / 4, static_cast<unsigned long long>(first_seed),
       static_cast<unsigned long long>(first_seed + seeds - 1));
   std::printf(
-      "%-6s %3s %-6s | %5s %5s | %8s %8s %8s %9s %6s | %8s %7s | %8s %7s | %5s %5s | %8s %5s\n",
+      "%-6s %3s %-6s | %5s %5s | %8s %8s %8s %9s %6s | %8s %7s | %8s %7s | %5s %5s | %8s %5s "
+      "%5s\n",
       "scene", "Hz", "mode", "obj", "frz", "dyn", "no dyn", "frozen", "frz nodyn", "ratio",
-      "joint t", "r", "free t", "r", "pairs", "fps", "seg", "IoU");
+      "joint t", "r", "free t", "r", "pairs", "fps", "seg", "IoU", "fps");
   const char* const modes[] = {"rgbd", "stereo"};
   for (const std::string& name : scenes) {
     std::vector<PipelineRow> rows[2];
@@ -449,6 +450,7 @@ int runPipeline(const std::vector<std::string>& scenes, int frames, int width, d
             runTracker(s.moving, s.unlabelled_frames, segmenting, &s.gt_moving, mask_prefix);
         row.seg_ate = seg.camera.ate_rmse_m;
         row.iou = seg.iou;
+        row.seg_fps = seg.fps;
         if (seeds > 1) {
           std::fprintf(stderr, "%s %s seed %llu: dyn %.4f frozen %.4f ratio %.2f, IoU %.2f\n",
                        name.c_str(), modes[m], static_cast<unsigned long long>(config.seed),
@@ -468,14 +470,14 @@ int runPipeline(const std::vector<std::string>& scenes, int frames, int width, d
       for (const PipelineRow& r : rows[m]) ratios.push_back(r.dyn / r.frozen);
       std::printf(
           "%-6s %3.0f %-6s | %5.3f %5.3f | %8.4f %8.4f %8.4f %9.4f %6.2f | %8.4f %7.3f | %8.4f "
-          "%7.3f | %5.0f %5.1f | %8.4f %5.2f\n",
+          "%7.3f | %5.0f %5.1f | %8.4f %5.2f %5.1f\n",
           name.c_str(), scene_fps, modes[m], median(&PipelineRow::moving_share),
           median(&PipelineRow::frozen_share), median(&PipelineRow::dyn),
           median(&PipelineRow::no_dyn), median(&PipelineRow::frozen),
           median(&PipelineRow::frozen_no_dyn), Stats::median(ratios), median(&PipelineRow::joint_t),
           median(&PipelineRow::joint_r), median(&PipelineRow::free_t), median(&PipelineRow::free_r),
           median(&PipelineRow::pairs), median(&PipelineRow::fps), median(&PipelineRow::seg_ate),
-          median(&PipelineRow::iou));
+          median(&PipelineRow::iou), median(&PipelineRow::seg_fps));
       std::fflush(stdout);
     }
   }
@@ -488,9 +490,10 @@ int runPipeline(const std::vector<std::string>& scenes, int frames, int width, d
       "seed). Object errors in the object frame\n"
       "(E = T_o^-1 M_gt^-1 M_est T_o), tracker world mapped to the ground truth's by the first "
       "camera pose.\n"
-      "seg: masks withheld, the tracker's motion segmentation instead: camera ATE and the mean "
+      "seg: masks withheld, the tracker's motion segmentation instead: camera ATE, the mean "
       "IoU of its moving mask\n"
-      "with the true one over the frames where either is non-empty.%s\n",
+      "with the true one over the frames where either is non-empty, and frames per second "
+      "(frames over the wall time of the run).%s\n",
       seeds > 1 ? "\nEvery figure is the median over the seeds." : "");
   return 0;
 }
