@@ -232,6 +232,23 @@ Hinge hingeFromMotions(const std::vector<SE3>& motions_world, double min_angle) 
   return hinge;
 }
 
+Hinge hingeFromPlanes(const Plane& a, const Plane& b, const Vec3& near_point, double min_angle) {
+  const Vec3 cross = a.normal.normalized().cross(b.normal.normalized());
+  // A fitted normal's sign is arbitrary: the angle between the planes is taken up to 90 deg.
+  if (!cross.allFinite() || !near_point.allFinite() ||
+      !(std::asin(std::min(1.0, cross.norm())) >= min_angle))
+    throw std::invalid_argument("hingeFromPlanes: the planes turn less than " +
+                                std::to_string(min_angle) + " rad");
+  // The point of both planes nearest to near_point: p = q - N^T (N N^T)^-1 (N q + d).
+  Eigen::Matrix<double, 2, 3> N;
+  N << a.normal.transpose(), b.normal.transpose();
+  const Eigen::Vector2d residual = N * near_point + Eigen::Vector2d(a.d, b.d);
+  Hinge hinge;
+  hinge.axis = cross.normalized();
+  hinge.point = near_point - N.transpose() * (N * N.transpose()).ldlt().solve(residual);
+  return hinge;
+}
+
 SE3 hingeJointFrame(const Hinge& hinge) {
   if (!hinge.axis.allFinite() || !(hinge.axis.norm() > 1e-9) || !hinge.point.allFinite())
     throw std::invalid_argument("hingeJointFrame: invalid hinge");

@@ -81,6 +81,12 @@ void checkMask(const cv::Mat& mask, const char* name, const CameraModel& camera)
   }
 }
 
+Vec3 centroidOf(const std::vector<Vec3>& points) {
+  Vec3 sum = Vec3::Zero();
+  for (const Vec3& p : points) sum += p;
+  return sum / static_cast<double>(points.size());
+}
+
 }  // namespace
 
 ObjectTracker::ObjectTracker(ObjectTrackerParams params, const CameraModel& camera,
@@ -93,13 +99,15 @@ ObjectTracker::ObjectTracker(ObjectTrackerParams params, const CameraModel& came
   validateCamera(camera_);
   if (params_.stride < 1 || params_.min_points < params_.tracking.min_points ||
       !(params_.max_depth_m > 0) || params_.hinge_min_motions < 2 ||
-      !(params_.hinge_min_angle > 0) || !(params_.static_speed >= 0) ||
+      !(params_.hinge_min_angle > 0) ||
+      !(params_.flat_fraction > 0 && params_.flat_fraction <= 1) || !(params_.static_speed >= 0) ||
       !(params_.static_angular_speed >= 0) || params_.static_frames < 1 ||
-      params_.mask_dilation_px < 0) {
+      params_.mask_dilation_px < 0 || params_.window_frames < 1 || params_.window_points < 1) {
     throw std::invalid_argument(
         "object tracker: need stride >= 1, min_points >= tracking.min_points, max_depth_m > 0, "
-        "hinge_min_motions >= 2, hinge_min_angle > 0, static speeds >= 0, static_frames >= 1, "
-        "mask_dilation_px >= 0");
+        "hinge_min_motions >= 2, hinge_min_angle > 0, flat_fraction in (0, 1], static speeds >= 0, "
+        "static_frames >= 1, "
+        "mask_dilation_px >= 0, window_frames >= 1, window_points >= 1");
   }
 }
 
@@ -168,11 +176,20 @@ std::vector<Vec3> ObjectTracker::objectPoints(const ObjectFrame& frame, int inst
   return points;
 }
 
+bool ObjectTracker::flatPlane(const std::vector<Vec3>& points_world, Plane* plane) const {
+  try {
+    const PlaneFit fit = fitPlaneRansac(points_world, params_.plane);
+    if (fit.inliers.size() < params_.flat_fraction * points_world.size()) return false;
+    *plane = fit.plane;
+    return true;
+  } catch (const std::invalid_argument&) {
+    return false;  // too few points
+  }
+}
+
 bool ObjectTracker::estimateJoint(const DynamicClass& dc, const ObjectFrame& frame,
                                   const std::vector<Vec3>& points_world, Joint* joint) const {
-  Vec3 centroid = Vec3::Zero();
-  for (const Vec3& p : points_world) centroid += p;
-  centroid /= static_cast<double>(points_world.size());
+  const Vec3 centroid = centroidOf(points_world);
   *joint = Joint(JointType::kFree, SE3(SO3(), centroid));
   if (dc.joint == JointType::kFree) return true;
   if (dc.joint == JointType::kRevolute) return false;  // the hinge comes from the motion
@@ -201,15 +218,103 @@ bool ObjectTracker::estimateJoint(const DynamicClass& dc, const ObjectFrame& fra
   }
 }
 
+void ObjectTracker::ObjectState::resetWindow() {
+  window_T_world_cam.clear();
+  window_utime.clear();
+  window_theta.clear();
+  window_points.clear();
+}
+
+void ObjectTracker::refineInWindow(ObjectState* state, const ObjectFrame& frame,
+                                   const std::vector<ObjectCorrespondence>& correspondences,
+                                   const cv::Mat& flow, ObjectMotionEstimate* estimate) const {
+  ObjectState& s = *state;
+  // A frame the object was not tracked in breaks the window.
+  if (!s.window_utime.empty() && s.window_utime.back() != previous_.header.utime) s.resetWindow();
+  if (s.window_T_world_cam.empty()) {
+    s.window_T_world_cam.push_back(previous_.T_world_cam);
+    s.window_utime.push_back(previous_.header.utime);
+  }
+  // Points measured before follow the flow while they stay on the object.
+  const int id = s.object.object_id;
+  for (ObjectState::WindowPoint& w : s.window_points) {
+    if (!w.alive) continue;
+    const Eigen::Vector2d& last = w.px.back();
+    // Bilinear in the flow.
+    const int x0 = static_cast<int>(std::floor(last.x())),
+              y0 = static_cast<int>(std::floor(last.y()));
+    w.alive = x0 >= 0 && y0 >= 0 && x0 + 1 < flow.cols && y0 + 1 < flow.rows;
+    if (!w.alive) continue;
+    const float ax = static_cast<float>(last.x() - x0), ay = static_cast<float>(last.y() - y0);
+    const cv::Vec2f f =
+        (1 - ay) * ((1 - ax) * flow.at<cv::Vec2f>(y0, x0) + ax * flow.at<cv::Vec2f>(y0, x0 + 1)) +
+        ay * ((1 - ax) * flow.at<cv::Vec2f>(y0 + 1, x0) + ax * flow.at<cv::Vec2f>(y0 + 1, x0 + 1));
+    const Eigen::Vector2d next = last + Eigen::Vector2d(f[0], f[1]);
+    const int xn = static_cast<int>(std::lround(next.x()));
+    const int yn = static_cast<int>(std::lround(next.y()));
+    w.alive = next.allFinite() && xn >= 0 && yn >= 0 && xn < camera_.width && yn < camera_.height &&
+              frame.instance.at<uint16_t>(yn, xn) == id;
+    if (w.alive) w.px.push_back(next);
+  }
+  s.window_T_world_cam.push_back(frame.T_world_cam);
+  s.window_utime.push_back(frame.header.utime);
+  s.window_theta.push_back(estimate->theta);
+  const int anchor = static_cast<int>(s.window_T_world_cam.size()) - 2;
+  const size_t step =
+      std::max<size_t>(1, correspondences.size() / std::max(1, params_.window_points));
+  for (size_t i = 0; i < correspondences.size(); i += step)
+    s.window_points.push_back({anchor, correspondences[i].p_cam0, {correspondences[i].px1}, true});
+  // Slide: the oldest frame leaves with the points measured in it.
+  while (static_cast<int>(s.window_T_world_cam.size()) > params_.window_frames) {
+    s.window_T_world_cam.erase(s.window_T_world_cam.begin());
+    s.window_utime.erase(s.window_utime.begin());
+    s.window_theta.erase(s.window_theta.begin());
+    std::vector<ObjectState::WindowPoint> kept;
+    for (ObjectState::WindowPoint& w : s.window_points) {
+      if (w.anchor == 0) continue;
+      --w.anchor;
+      kept.push_back(std::move(w));
+    }
+    s.window_points = std::move(kept);
+  }
+  ObjectWindowProblem problem;
+  problem.joint = s.joint;
+  problem.camera = camera_;
+  problem.T_world_cam = s.window_T_world_cam;
+  const int n = static_cast<int>(problem.T_world_cam.size());
+  problem.dt = (s.window_utime.back() - s.window_utime.front()) * 1e-6 / (n - 1);
+  for (const ObjectState::WindowPoint& w : s.window_points) {
+    const int landmark = static_cast<int>(problem.points_cam0.size());
+    problem.points_cam0.push_back(w.p_anchor);
+    problem.anchor_frame.push_back(w.anchor);
+    for (size_t j = 0; j < w.px.size(); ++j)
+      problem.observations.push_back({landmark, w.anchor + 1 + static_cast<int>(j), w.px[j]});
+  }
+  ObjectWindowResult r;
+  try {
+    r = solveObjectWindow(problem, params_.window, &s.window_theta);
+  } catch (const std::invalid_argument&) {
+    return;  // degenerate window (e.g. time stamps out of order): the frame-to-frame estimate
+  }
+  const int k = s.joint.dof();
+  s.window_theta = r.theta;
+  estimate->theta = r.theta.back();
+  estimate->motion_world = r.motion_world.back();
+  estimate->twist_joint = r.twist_joint.back();
+  estimate->covariance = r.covariance.bottomRightCorner(k, k);
+  estimate->twist_covariance = r.twist_covariance.back();
+}
+
 void ObjectTracker::updateObject(ObjectState* state, const DynamicClass& dc,
                                  const ObjectFrame& frame,
                                  const std::vector<ObjectCorrespondence>& correspondences,
-                                 double dt) {
+                                 const cv::Mat& flow, double dt) {
   const JointVector* initial =
       state->last_theta.size() == state->joint.dof() ? &state->last_theta : nullptr;
-  const ObjectMotionEstimate est =
+  ObjectMotionEstimate est =
       trackObjectMotion(state->joint, camera_, previous_.T_world_cam, frame.T_world_cam,
                         correspondences, dt, params_.tracking, initial);
+  if (params_.window_frames > 1) refineInWindow(state, frame, correspondences, flow, &est);
   applyObjectMotion(est, state->joint, &state->object);
   state->last_motion_world = est.motion_world;
   state->last_dt = dt;
@@ -218,11 +323,21 @@ void ObjectTracker::updateObject(ObjectState* state, const DynamicClass& dc,
     // Free-tracked motions since the first frame give the hinge once they turn enough.
     state->motions.push_back(state->object.T_world_object * state->T_world_object_first.inverse());
     if (static_cast<int>(state->motions.size()) >= params_.hinge_min_motions) {
+      // A flat object's hinge comes from its planes once they have turned enough; where this
+      // frame's points are not flat (noisy stereo depth), from the motions.
+      std::vector<Vec3> points;
+      if (!state->first_plane.normal.isZero())
+        points = objectPoints(frame, state->object.object_id);
+      Plane plane;
       try {
-        const Hinge hinge = hingeFromMotions(state->motions, params_.hinge_min_angle);
+        const Hinge hinge = !points.empty() && flatPlane(points, &plane)
+                                ? hingeFromPlanes(state->first_plane, plane, centroidOf(points),
+                                                  params_.hinge_min_angle)
+                                : hingeFromMotions(state->motions, params_.hinge_min_angle);
         state->joint = Joint(JointType::kRevolute, hingeJointFrame(hinge));
         state->joint_final = true;
         state->last_theta = JointVector();
+        state->resetWindow();  // its displacements are in the free joint's coordinates
       } catch (const std::invalid_argument&) {
         // Not enough rotation yet.
       }
@@ -337,10 +452,11 @@ ObjectList ObjectTracker::track(const ObjectFrame& frame) {
             state.joint = planar;
             state.joint_final = true;
             state.last_theta = JointVector();
+            state.resetWindow();
           }
         }
         try {
-          updateObject(&state, dc, frame, c, dt);
+          updateObject(&state, dc, frame, c, flow, dt);
           out.objects.push_back(state.object);
         } catch (const std::invalid_argument&) {
           // Degenerate points (e.g. all behind the camera): the object is not seen this frame.
@@ -362,6 +478,7 @@ ObjectList ObjectTracker::track(const ObjectFrame& frame) {
     state.object.parent_cluster = dc.parent_class;
     state.object.covariance = Mat6::Identity() * 1e6;  // no velocity measured yet
     state.T_world_object_first = state.object.T_world_object;
+    if (dc.joint == JointType::kRevolute) flatPlane(points, &state.first_plane);
     out.objects.push_back(state.object);
     objects_.emplace(id, std::move(state));
   }
@@ -413,6 +530,8 @@ void ObjectTracker::save(BinaryWriter* out) const {
     w.se3(state.joint.T_world_joint());
     w.put<uint8_t>(state.joint_final);
     w.se3(state.T_world_object_first);
+    w.matrix(state.first_plane.normal);
+    w.put(state.first_plane.d);
     w.put<uint32_t>(state.motions.size());
     for (const SE3& M : state.motions) w.se3(M);
     putJointVector(&w, state.last_theta);
@@ -420,6 +539,21 @@ void ObjectTracker::save(BinaryWriter* out) const {
     w.put(state.last_dt);
     w.put<int32_t>(state.still_frames);
     w.put<uint8_t>(state.is_static);
+    w.put<uint32_t>(state.window_T_world_cam.size());
+    for (size_t f = 0; f < state.window_T_world_cam.size(); ++f) {
+      w.se3(state.window_T_world_cam[f]);
+      w.put<int64_t>(state.window_utime[f]);
+    }
+    w.put<uint32_t>(state.window_theta.size());
+    for (const JointVector& theta : state.window_theta) putJointVector(&w, theta);
+    w.put<uint32_t>(state.window_points.size());
+    for (const ObjectState::WindowPoint& point : state.window_points) {
+      w.put<int32_t>(point.anchor);
+      w.matrix(point.p_anchor);
+      w.put<uint32_t>(point.px.size());
+      for (const Eigen::Vector2d& px : point.px) w.matrix(px);
+      w.put<uint8_t>(point.alive);
+    }
   }
   w.put<uint8_t>(has_previous_);
   w.header(previous_.header);
@@ -451,6 +585,8 @@ void ObjectTracker::load(BinaryReader* in) {
     state.joint = Joint(joint_type, r.se3());
     state.joint_final = r.get<uint8_t>() != 0;
     state.T_world_object_first = r.se3();
+    r.matrix(&state.first_plane.normal);
+    state.first_plane.d = r.get<double>();
     state.motions.resize(r.count(56));
     for (SE3& M : state.motions) M = r.se3();
     state.last_theta = getJointVector(&r);
@@ -458,6 +594,26 @@ void ObjectTracker::load(BinaryReader* in) {
     state.last_dt = r.get<double>();
     state.still_frames = r.get<int32_t>();
     state.is_static = r.get<uint8_t>() != 0;
+    const uint32_t frames = r.count(64);
+    for (uint32_t f = 0; f < frames; ++f) {
+      state.window_T_world_cam.push_back(r.se3());
+      state.window_utime.push_back(r.get<int64_t>());
+    }
+    state.window_theta.resize(r.count(4));
+    for (JointVector& theta : state.window_theta) theta = getJointVector(&r);
+    state.window_points.resize(r.count(33));
+    for (ObjectState::WindowPoint& point : state.window_points) {
+      point.anchor = r.get<int32_t>();
+      r.matrix(&point.p_anchor);
+      point.px.resize(r.count(16));
+      for (Eigen::Vector2d& px : point.px) r.matrix(&px);
+      point.alive = r.get<uint8_t>() != 0;
+      if (point.anchor < 0 || point.anchor + point.px.size() >= frames)
+        r.fail("object tracker: window point outside its window");
+    }
+    if (frames > 0 && state.window_theta.size() + 1 != frames)
+      r.fail("object tracker: window of " + std::to_string(frames) + " frames with " +
+             std::to_string(state.window_theta.size()) + " displacements");
   }
   ObjectFrame previous;
   const bool has_previous = r.get<uint8_t>() != 0;

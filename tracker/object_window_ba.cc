@@ -11,26 +11,53 @@
 
 namespace radslam {
 
-Eigen::MatrixXd chainedMotionJacobian(const JointBasis& A, const std::vector<JointVector>& theta,
-                                      int f, const Vec3& q, Vec3* moved) {
-  const int k = static_cast<int>(A.cols());
-  // before[m] = E_{m-1} ... E_0 applied to q (the point just before displacement m);
-  // after[m] = E_{f-1} ... E_{m+1}.
-  std::vector<Vec3> before(f + 1);
-  before[0] = q;
-  for (int m = 0; m < f; ++m) before[m + 1] = SE3::exp(A * theta[m]) * before[m];
-  Eigen::MatrixXd J(3, f * k);
-  SE3 after;
-  for (int m = f - 1; m >= 0; --m) {
-    const Vec6 xi = A * theta[m];
-    const Vec3 p = before[m + 1];  // E_m applied to before[m]
-    // Exp(A (theta + d)) ~= Exp(J_l A d) Exp(A theta); d(Exp(e) p)/de = [I, -hat(p)].
-    Mat36 H_e;
-    H_e << Mat3::Identity(), -hat(p);
-    J.middleCols(m * k, k) = after.rotation() * H_e * SE3::leftJacobian(xi) * A;
-    after = after * SE3::exp(xi);
+namespace {
+
+// The displacements E_m = Exp(A theta_m) of a window and J_l(A theta_m) A, shared by every
+// point's chained-motion Jacobian.
+struct Displacements {
+  std::vector<SE3> E;
+  std::vector<Eigen::Matrix<double, 6, Eigen::Dynamic, 0, 6, 6>> JlA;
+
+  Displacements(const JointBasis& A, const std::vector<JointVector>& theta) {
+    for (const JointVector& t : theta) {
+      const Vec6 xi = A * t;
+      E.push_back(SE3::exp(xi));
+      JlA.push_back(SE3::leftJacobian(xi) * A);
+    }
   }
-  if (moved) *moved = before[f];
+
+  // Columns m*k .. m*k+k-1 of J (3 x f k, zeroed by the caller) for from <= m < f; returns
+  // E_{f-1} ... E_from q.
+  Vec3 chain(int from, int f, const Vec3& q, Eigen::MatrixXd* J) const {
+    const int k = JlA.empty() ? 0 : static_cast<int>(JlA[0].cols());
+    // before[m] = E_{m-1} ... E_from applied to q (the point just before displacement m);
+    // after = E_{f-1} ... E_{m+1}.
+    Vec3 before[64];
+    before[from] = q;
+    for (int m = from; m < f; ++m) before[m + 1] = E[m] * before[m];
+    Mat3 after = Mat3::Identity();
+    for (int m = f - 1; m >= from; --m) {
+      const Vec3& p = before[m + 1];  // E_m applied to before[m]
+      // Exp(A (theta + d)) ~= Exp(J_l A d) Exp(A theta); d(Exp(e) p)/de = [I, -hat(p)].
+      Mat36 H_e;
+      H_e << Mat3::Identity(), -hat(p);
+      J->middleCols(m * k, k).noalias() = after * H_e * JlA[m];
+      after = after * E[m].rotation();
+    }
+    return before[f];
+  }
+};
+
+constexpr int kMaxWindowFrames = 63;  // Displacements::chain keeps the chain on the stack
+
+}  // namespace
+
+Eigen::MatrixXd chainedMotionJacobian(const JointBasis& A, const std::vector<JointVector>& theta,
+                                      int f, const Vec3& q, Vec3* moved, int from) {
+  Eigen::MatrixXd J = Eigen::MatrixXd::Zero(3, f * A.cols());
+  const Vec3 p = Displacements(A, theta).chain(from, f, q, &J);
+  if (moved) *moved = p;
   return J;
 }
 
@@ -39,20 +66,30 @@ namespace {
 void checkProblem(const ObjectWindowProblem& p, const std::vector<JointVector>* initial) {
   validateCamera(p.camera);
   const int n = static_cast<int>(p.T_world_cam.size());
-  if (n < 2) throw std::invalid_argument("solveObjectWindow: need at least 2 frames");
+  if (n < 2 || n > kMaxWindowFrames)
+    throw std::invalid_argument("solveObjectWindow: need 2.." + std::to_string(kMaxWindowFrames) +
+                                " frames");
   if (!(p.dt > 0)) throw std::invalid_argument("solveObjectWindow: dt must be > 0 s");
   for (const SE3& T : p.T_world_cam)
     if (!T.matrix().allFinite()) throw std::invalid_argument("solveObjectWindow: bad camera pose");
   for (const Vec3& pt : p.points_cam0)
     if (!pt.allFinite() || !(pt.z() > 0))
       throw std::invalid_argument("solveObjectWindow: points must be finite with z > 0");
+  if (!p.anchor_frame.empty() && p.anchor_frame.size() != p.points_cam0.size())
+    throw std::invalid_argument("solveObjectWindow: anchor_frame needs one frame per point");
+  for (const int a : p.anchor_frame)
+    if (a < 0 || a > n - 2)
+      throw std::invalid_argument("solveObjectWindow: anchor frame " + std::to_string(a) +
+                                  " outside 0.." + std::to_string(n - 2));
   for (const ObjectObservation& o : p.observations) {
     if (o.landmark < 0 || o.landmark >= static_cast<int>(p.points_cam0.size()))
       throw std::invalid_argument("solveObjectWindow: observation of unknown landmark " +
                                   std::to_string(o.landmark));
-    if (o.frame < 1 || o.frame >= n)
+    const int anchor = p.anchor_frame.empty() ? 0 : p.anchor_frame[o.landmark];
+    if (o.frame <= anchor || o.frame >= n)
       throw std::invalid_argument("solveObjectWindow: observation in frame " +
-                                  std::to_string(o.frame) + " outside 1.." + std::to_string(n - 1));
+                                  std::to_string(o.frame) + " outside " +
+                                  std::to_string(anchor + 1) + ".." + std::to_string(n - 1));
     if (!o.px.allFinite()) throw std::invalid_argument("solveObjectWindow: non-finite pixel");
   }
   if (initial) {
@@ -83,9 +120,10 @@ class WindowSolver {
   WindowSolver(const ObjectWindowProblem& p, const ObjectWindowParams& params)
       : p_(p), params_(params), k_(p.joint.dof()), n_(static_cast<int>(p.T_world_cam.size())) {
     K_ = k_ * (n_ - 1);
-    T_joint_cam0_ = p.joint.T_world_joint().inverse() * p.T_world_cam[0];
-    for (int f = 0; f < n_; ++f)
-      T_cam_joint_.push_back(p.T_world_cam[f].inverse() * p.joint.T_world_joint());
+    for (int f = 0; f < n_; ++f) {
+      T_joint_cam_.push_back(p.joint.T_world_joint().inverse() * p.T_world_cam[f]);
+      T_cam_joint_.push_back(T_joint_cam_.back().inverse());
+    }
     // Per joint coordinate: translation or rotation, for the constant-velocity weights.
     cv_weight_.resize(k_);
     for (int c = 0; c < k_; ++c) {
@@ -120,13 +158,17 @@ class WindowSolver {
     if (inlier_sq) *inlier_sq = 0;
     double cost = 0;
     const double inv_var = 1.0 / (params_.pixel_sigma * params_.pixel_sigma);
-    const Mat3 R_joint_cam0 = T_joint_cam0_.rotation();
-    // Chained displacements M_f = Exp(A theta_{f-1}) ... Exp(A theta_0), joint frame.
+    // Chained displacements M_f = Exp(A theta_{f-1}) ... Exp(A theta_0), joint frame; a point
+    // anchored in frame a moves by M_f M_a^-1.
+    const Displacements D(p_.joint.basis(), s.theta);
     std::vector<SE3> M(n_);
-    for (int f = 1; f < n_; ++f) M[f] = SE3::exp(p_.joint.basis() * s.theta[f - 1]) * M[f - 1];
+    for (int f = 1; f < n_; ++f) M[f] = D.E[f - 1] * M[f - 1];
+    Eigen::MatrixXd J_chain(3, K_), J_t(2, K_);
     for (const ObjectObservation& o : p_.observations) {
-      const Vec3 q = T_joint_cam0_ * s.points[o.landmark];
-      const Vec3 moved = M[o.frame] * q;
+      const int a = anchor(o.landmark);
+      const Vec3 q = T_joint_cam_[a] * s.points[o.landmark];
+      const SE3 M_fa = M[o.frame] * M[a].inverse();
+      const Vec3 moved = M_fa * q;
       const SE3& T_cam_joint = T_cam_joint_[o.frame];
       const Vec3 pc = T_cam_joint * moved;
       if (!(pc.z() > 1e-6)) continue;
@@ -142,16 +184,18 @@ class WindowSolver {
       }
       if (!sys) continue;
       const Eigen::Matrix<double, 2, 3> H_q = H_pc * T_cam_joint.rotation();
-      const Eigen::MatrixXd J_t =
-          H_q * chainedMotionJacobian(p_.joint.basis(), s.theta, o.frame, q);  // 2 x (frame k)
-      const int cols = static_cast<int>(J_t.cols());
-      sys->H_tt.topLeftCorner(cols, cols).noalias() += w * J_t.transpose() * J_t;
-      sys->g_t.head(cols).noalias() += w * J_t.transpose() * r;
+      // Only the displacements a .. frame-1 move the point: columns a k .. frame k.
+      const int first = a * k_, cols = (o.frame - a) * k_;
+      D.chain(a, o.frame, q, &J_chain);
+      J_t.leftCols(cols).noalias() = H_q * J_chain.middleCols(first, cols);
+      const auto J = J_t.leftCols(cols);
+      sys->H_tt.block(first, first, cols, cols).noalias() += w * J.transpose() * J;
+      sys->g_t.segment(first, cols).noalias() += w * J.transpose() * r;
       if (!params_.optimise_points) continue;
-      // d moved / d q = R(M_f).
-      const Eigen::Matrix<double, 2, 3> J_p = H_q * M[o.frame].rotation() * R_joint_cam0;
+      // d moved / d point = R(M_f M_a^-1) R_joint_cam_a.
+      const Eigen::Matrix<double, 2, 3> J_p = H_q * M_fa.rotation() * T_joint_cam_[a].rotation();
       sys->H_pp[o.landmark].noalias() += w * J_p.transpose() * J_p;
-      sys->H_tp[o.landmark].topRows(cols).noalias() += w * J_t.transpose() * J_p;
+      sys->H_tp[o.landmark].middleRows(first, cols).noalias() += w * J.transpose() * J_p;
       sys->g_p[o.landmark].noalias() += w * J_p.transpose() * r;
     }
     // Depth prior on the points (camera 0 frame).
@@ -213,11 +257,12 @@ class WindowSolver {
   int K() const { return K_; }
 
  private:
+  int anchor(int landmark) const { return p_.anchor_frame.empty() ? 0 : p_.anchor_frame[landmark]; }
+
   const ObjectWindowProblem& p_;
   const ObjectWindowParams& params_;
   int k_, n_, K_ = 0;
-  SE3 T_joint_cam0_;
-  std::vector<SE3> T_cam_joint_;
+  std::vector<SE3> T_joint_cam_, T_cam_joint_;
   JointVector cv_weight_;
   std::vector<Mat3> prior_weight_;  // information of each point's measurement
 };

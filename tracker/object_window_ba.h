@@ -14,8 +14,8 @@
 
 namespace radslam {
 
-/// Landmark l seen at pixel px in window frame `frame` (1..N-1; frame 0 is where the landmark
-/// was measured).
+/// Landmark l seen at pixel px in window frame `frame` (after the frame where the landmark was
+/// measured, its anchor).
 struct ObjectObservation {
   int landmark = 0;
   int frame = 1;
@@ -25,8 +25,11 @@ struct ObjectObservation {
 struct ObjectWindowProblem {
   Joint joint;
   CameraModel camera;
-  std::vector<SE3> T_world_cam;   // N >= 2 frames of the window
-  std::vector<Vec3> points_cam0;  // m, the object's points measured in camera 0 (depth)
+  std::vector<SE3> T_world_cam;  // N >= 2 frames of the window
+  // m, the object's points, each measured (depth) in the camera of its anchor frame.
+  std::vector<Vec3> points_cam0;
+  // The anchor frame of each point, 0..N-2; empty: every point is measured in frame 0.
+  std::vector<int> anchor_frame;
   std::vector<ObjectObservation> observations;
   double dt = 0.1;  // s between frames
 };
@@ -53,7 +56,7 @@ struct ObjectWindowResult {
   std::vector<Vec6> twist_joint;       // A theta_i / dt (m/s, rad/s)
   std::vector<Mat6> twist_covariance;  // of twist_joint, from the marginal covariance
   Eigen::MatrixXd covariance;          // of (theta_0, ..., theta_{N-2}), points marginalised out
-  std::vector<Vec3> points_cam0;       // refined points, camera 0 frame (m)
+  std::vector<Vec3> points_cam0;       // refined points, camera of their anchor frame (m)
   double rms_px = 0;                   // reprojection RMS of the inliers
   int iterations = 0;
   bool converged = false;
@@ -68,10 +71,10 @@ ObjectWindowResult solveObjectWindow(const ObjectWindowProblem& problem,
                                      const ObjectWindowParams& params = {},
                                      const std::vector<JointVector>* initial = nullptr);
 
-/// The derivative of the point q moved by M_f = Exp(A theta_{f-1}) ... Exp(A theta_0) (joint
-/// frame) w.r.t. each theta_m, m < f: columns m*k .. m*k+k-1 of the 3 x (f k) result. Exposed
-/// for the finite-difference test.
+/// The derivative of the point q moved by Exp(A theta_{f-1}) ... Exp(A theta_from) (joint frame)
+/// w.r.t. each theta_m, m < f: columns m*k .. m*k+k-1 of the 3 x (f k) result (zero for
+/// m < from). Exposed for the finite-difference test.
 Eigen::MatrixXd chainedMotionJacobian(const JointBasis& A, const std::vector<JointVector>& theta,
-                                      int f, const Vec3& q, Vec3* moved = nullptr);
+                                      int f, const Vec3& q, Vec3* moved = nullptr, int from = 0);
 
 }  // namespace radslam

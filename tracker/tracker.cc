@@ -132,6 +132,7 @@ void Tracker::Impl::setUpCamera(std::unique_ptr<ImagePreparer> first_preparer) {
   object_params.stride = p.object_stride;
   object_params.mask_dilation_px = p.object_mask_dilation_px;
   object_params.flow_warp_smoothing_px = p.object_flow_smoothing_px;
+  object_params.window_frames = p.object_window_frames;
   if (p.motion_segmentation) {
     // Objects found by motion segmentation: a class of their own with a free joint.
     object_params.classes.push_back(DynamicClass{p.motion_class_id, JointType::kFree, -1});

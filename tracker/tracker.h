@@ -196,6 +196,8 @@ struct TrackerParams {
   int object_stride = 2;                // working px between an object's sample points
   int object_mask_dilation_px = 3;      // working px the moving mask grows by (silhouette edges)
   double object_flow_smoothing_px = 4;  // working px (ObjectTrackerParams::flow_warp_smoothing_px)
+  // Frames of each object's dynamic BA window (ObjectTrackerParams::window_frames); 1 = off.
+  int object_window_frames = 5;
 
   // Keyframe output (KEYFRAME messages at working resolution).
   double upsample_sigma_range = 12.0;  // grey levels

@@ -19,7 +19,7 @@ namespace radslam {
 namespace {
 
 constexpr char kMagic[8] = {'R', 'S', 'T', 'R', 'K', 'C', 'K', '\0'};
-constexpr uint32_t kFormat = 1;
+constexpr uint32_t kFormat = 2;  // 2: object windows and planes
 
 /// What a checkpoint's state is only valid with.
 struct StateOptions {

@@ -134,6 +134,7 @@ void validateTrackerParams(const TrackerParams& p) {
   check(p.motion_ground_max_moving > 0 && p.motion_ground_max_moving <= 1,
         "motion_ground_max_moving must be in (0, 1]");
   check(p.object_flow_smoothing_px >= 0, "object_flow_smoothing_px must be >= 0");
+  check(p.object_window_frames >= 1, "object_window_frames must be >= 1");
   parseDynamicClasses(p.dynamic_classes);  // throws naming the bad item
 }
 
@@ -230,6 +231,7 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("motion_max_fraction", &p.motion_max_fraction);
   r.get("motion_ground_max_moving", &p.motion_ground_max_moving);
   r.get("object_flow_smoothing_px", &p.object_flow_smoothing_px);
+  r.get("object_window_frames", &p.object_window_frames);
   r.finish();
   try {
     validateTrackerParams(p);

@@ -205,5 +205,27 @@ TEST(Joints, HingeFromTheSyntheticDoorsMotion) {
   EXPECT_THROW(hingeFromMotions({SE3(), SE3(SO3(), Vec3(1, 0, 0))}), std::invalid_argument);
 }
 
+// A door's plane closed and opened by 20 deg about a tilted hinge in it: the hinge is the
+// planes' intersection, with the point nearest to the given one.
+TEST(Joints, HingeFromTheDoorsPlanes) {
+  const Vec3 axis = Vec3(0.1, 0.2, 1).normalized(), on_axis(2, -1, 0.5);
+  const Vec3 normal_closed = axis.cross(Vec3::UnitX()).normalized();  // the axis lies in the door
+  const Plane closed{normal_closed, -normal_closed.dot(on_axis)};
+  const Vec3 normal_open = SO3::exp(axis * 20 * M_PI / 180) * normal_closed;
+  for (const double sign : {1.0, -1.0}) {  // a fitted normal's sign is arbitrary
+    const Plane open{sign * normal_open, -sign * normal_open.dot(on_axis)};
+    const Vec3 near = on_axis + 0.7 * axis + Vec3(0.3, -0.2, 0.1);
+    const Hinge hinge = hingeFromPlanes(closed, open, near, 0.1);
+    EXPECT_GT(std::abs(hinge.axis.dot(axis)), 1 - 1e-12);
+    const Vec3 offset = hinge.point - on_axis;
+    EXPECT_LT((offset - offset.dot(axis) * axis).norm(), 1e-12);  // on the axis
+    // The point of the line nearest to `near`: their difference is across the axis.
+    EXPECT_LT(std::abs((near - hinge.point).dot(axis)), 1e-12);
+  }
+  EXPECT_THROW(hingeFromPlanes(closed, closed, on_axis, 0.1), std::invalid_argument);
+  const Plane slightly{SO3::exp(axis * 0.05) * normal_closed, 0};
+  EXPECT_THROW(hingeFromPlanes(closed, slightly, on_axis, 0.1), std::invalid_argument);
+}
+
 }  // namespace
 }  // namespace radslam

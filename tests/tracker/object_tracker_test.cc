@@ -1,5 +1,6 @@
 #include "tracker/object_tracker.h"
 
+#include <algorithm>
 #include <cmath>
 #include <map>
 #include <vector>
@@ -97,32 +98,36 @@ const DoorSequence& door() {
   return sequence;
 }
 
-TEST(TrackerWithObjects, DoorIsMaskedAndTrackedWithItsHinge) {
+struct DoorRun {
+  MotionError mean;  // object motion error per frame (m, rad)
+  int pairs = 0;
+  bool revolute = false;  // the hinge was estimated
+  double hinge_axis_error_deg = 180;
+  int masked_keyframes = 0;
+};
+
+DoorRun trackDoor() {
   const DoorSequence& seq = door();
   TrackerParams params;
   params.mode = "rgbd";
   Tracker tracker(params);
+  DoorRun run;
   std::map<int64_t, ObjectList> objects;
-  int masked_keyframes = 0;
   for (const Frame& f : seq.frames) {
     const TrackerOutput out = tracker.process(f);
-    ASSERT_TRUE(out.has_objects);
+    EXPECT_TRUE(out.has_objects);
     objects[out.objects.frame_index] = out.objects;
     for (const Keyframe& kf : out.keyframes) {
       if (kf.dynamic_mask.empty()) continue;
-      ++masked_keyframes;
+      ++run.masked_keyframes;
       EXPECT_EQ(kf.dynamic_mask.size(), kf.color.size());
       EXPECT_GT(cv::countNonZero(kf.dynamic_mask), 0);
     }
   }
-  EXPECT_GT(masked_keyframes, 0);
 
   // Object motion error per frame, the tracker's world mapped to the truth's by the first pose.
   const SE3 A = seq.scene.cameraPose(0);
   const int door_id = seq.scene.objects().at(0).object_id;
-  double sum_t = 0, sum_r = 0;
-  int pairs = 0;
-  bool revolute = false;
   for (int i = 0; i + 1 < DoorSequence::kFrames; ++i) {
     const TrackedObject *a = nullptr, *b = nullptr;
     for (const TrackedObject& o : objects[i].objects)
@@ -130,23 +135,40 @@ TEST(TrackerWithObjects, DoorIsMaskedAndTrackedWithItsHinge) {
     for (const TrackedObject& o : objects[i + 1].objects)
       if (o.object_id == door_id) b = &o;
     if (!a || !b || b->covariance(0, 0) >= 1e6) continue;
-    revolute |= b->joint_type == JointType::kRevolute;
+    if (b->joint_type == JointType::kRevolute) {
+      run.revolute = true;
+      const Vec3 axis = (A * b->T_world_joint).rotation().col(2);
+      const Vec3 axis_gt = syntheticObject(seq.scene, door_id).T_world_joint.rotation().col(2);
+      run.hinge_axis_error_deg = std::acos(std::min(1.0, std::abs(axis.dot(axis_gt)))) * 180 / M_PI;
+    }
     const SE3 M_est = A * (b->T_world_object * a->T_world_object.inverse()) * A.inverse();
     SE3 T_world_object;
     for (const ObjectPoseSample& s : seq.scene.objectPoses(i))
       if (s.object_id == door_id) T_world_object = s.T_world_object;
     const MotionError e = objectMotionError(
         M_est, syntheticObjectMotion(seq.scene, door_id, i, i + 1), T_world_object);
-    sum_t += e.translation;
-    sum_r += e.rotation;
-    ++pairs;
+    run.mean.translation += e.translation;
+    run.mean.rotation += e.rotation;
+    ++run.pairs;
   }
-  ASSERT_GT(pairs, DoorSequence::kFrames / 2);
-  EXPECT_TRUE(revolute) << "the hinge was never estimated";
-  // Door motion: up to about 2 deg and 3 cm per frame; measured 0.5-1 deg error with a free
-  // joint before the hinge is known.
-  EXPECT_LT(sum_t / pairs, 0.03);
-  EXPECT_LT(sum_r / pairs * 180 / M_PI, 1.5);
+  if (run.pairs > 0) {
+    run.mean.translation /= run.pairs;
+    run.mean.rotation /= run.pairs;
+  }
+  return run;
+}
+
+TEST(TrackerWithObjects, DoorIsMaskedAndTrackedWithItsHinge) {
+  const DoorRun run = trackDoor();
+  EXPECT_GT(run.masked_keyframes, 0);
+  ASSERT_GT(run.pairs, DoorSequence::kFrames / 2);
+  EXPECT_TRUE(run.revolute) << "the hinge was never estimated";
+  // From the door's planes: 0.49 deg off (from its first motions it was 26-37 deg off).
+  EXPECT_LT(run.hinge_axis_error_deg, 2.0);
+  // Door motion: up to about 1 deg per frame; measured 0.001 m and 0.4 deg per frame (0.002 m
+  // with the hinge from the motions).
+  EXPECT_LT(run.mean.translation, 0.003);
+  EXPECT_LT(run.mean.rotation * 180 / M_PI, 0.6);
 }
 
 TEST(TrackerWithObjects, MaskingTheDoorImprovesTheCamera) {

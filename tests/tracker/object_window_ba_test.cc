@@ -28,21 +28,23 @@ TEST(ObjectWindowBa, ChainedMotionJacobianMatchesCentralDifferences) {
         for (int i = 0; i < k; ++i) t(i) = 0.4 * g(rng);
       const Vec3 q(g(rng), g(rng), g(rng));
       const int f = 3;
-      Vec3 moved;
-      const Eigen::MatrixXd J = chainedMotionJacobian(A, theta, f, q, &moved);
-      ASSERT_EQ(J.cols(), f * k);
-      const double h = 1e-6;
-      for (int m = 0; m < f; ++m) {
-        for (int c = 0; c < k; ++c) {
-          std::vector<JointVector> tp = theta, tm = theta;
-          tp[m](c) += h;
-          tm[m](c) -= h;
-          Vec3 pp, pm;
-          chainedMotionJacobian(A, tp, f, q, &pp);
-          chainedMotionJacobian(A, tm, f, q, &pm);
-          const Vec3 fd = (pp - pm) / (2 * h);
-          EXPECT_LT((fd - J.col(m * k + c)).norm(), 1e-7 * (1 + fd.norm()))
-              << jointTypeName(type) << " theta " << m << " coordinate " << c;
+      for (int from = 0; from < f; ++from) {  // the frame where the point was measured
+        Vec3 moved;
+        const Eigen::MatrixXd J = chainedMotionJacobian(A, theta, f, q, &moved, from);
+        ASSERT_EQ(J.cols(), f * k);
+        const double h = 1e-6;
+        for (int m = 0; m < f; ++m) {
+          for (int c = 0; c < k; ++c) {
+            std::vector<JointVector> tp = theta, tm = theta;
+            tp[m](c) += h;
+            tm[m](c) -= h;
+            Vec3 pp, pm;
+            chainedMotionJacobian(A, tp, f, q, &pp, from);
+            chainedMotionJacobian(A, tm, f, q, &pm, from);
+            const Vec3 fd = (pp - pm) / (2 * h);
+            EXPECT_LT((fd - J.col(m * k + c)).norm(), 1e-7 * (1 + fd.norm()))
+                << jointTypeName(type) << " theta " << m << " coordinate " << c << " from " << from;
+          }
         }
       }
     }
@@ -93,6 +95,38 @@ TEST(ObjectWindowBa, RecoversTheCarExactlyWithoutNoise) {
   EXPECT_LT(r.rms_px, 1e-3);
   EXPECT_FALSE(r.is_static);
   EXPECT_EQ(r.covariance.rows(), 12);
+}
+
+TEST(ObjectWindowBa, RecoversTheCarExactlyFromPointsAnchoredInLaterFrames) {
+  const SyntheticScene scene = carScene(6);
+  const Joint joint(JointType::kPlanar, syntheticObject(scene, 100).T_world_joint);
+  std::mt19937_64 rng(1);
+  // Frames 0..4; points measured in frame 0, plus points measured in frame 2 seen in 3 and 4.
+  ObjectWindowProblem p = syntheticObjectWindow(scene, joint, 100, 0, 5, 6, {}, &rng);
+  const ObjectWindowProblem later = syntheticObjectWindow(scene, joint, 100, 2, 3, 3, {}, &rng);
+  p.anchor_frame.assign(p.points_cam0.size(), 0);
+  const int offset = static_cast<int>(p.points_cam0.size());
+  for (const Vec3& point : later.points_cam0) {
+    p.points_cam0.push_back(point);
+    p.anchor_frame.push_back(2);
+  }
+  for (ObjectObservation o : later.observations) {
+    o.landmark += offset;
+    o.frame += 2;
+    p.observations.push_back(o);
+  }
+  ASSERT_GT(later.points_cam0.size(), 50u);
+  ObjectWindowParams params;
+  params.pixel_sigma = 0.01;
+  params.depth_sigma_rel = 1e-4;
+  const ObjectWindowResult r = solveObjectWindow(p, params);
+  const MotionError e = windowError(scene, 100, 0, r.motion_world);
+  EXPECT_LT(e.translation, 1e-5);
+  EXPECT_LT(e.rotation, 1e-5);
+  EXPECT_LT(r.rms_px, 1e-3);
+  // An anchor must come before the frames that observe it.
+  p.anchor_frame.back() = 4;
+  EXPECT_THROW(solveObjectWindow(p, params), std::invalid_argument);
 }
 
 TEST(ObjectWindowBa, RecoversTheDoorExactlyWithFixedPoints) {
