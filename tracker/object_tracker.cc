@@ -106,8 +106,7 @@ ObjectTracker::ObjectTracker(ObjectTrackerParams params, const CameraModel& came
     throw std::invalid_argument(
         "object tracker: need stride >= 1, min_points >= tracking.min_points, max_depth_m > 0, "
         "hinge_min_motions >= 2, hinge_min_angle > 0, flat_fraction in (0, 1], static speeds >= 0, "
-        "static_frames >= 1, "
-        "mask_dilation_px >= 0, window_frames >= 1, window_points >= 1");
+        "static_frames >= 1, mask_dilation_px >= 0, window_frames >= 1, window_points >= 1");
   }
 }
 

@@ -27,8 +27,8 @@ struct Displacements {
     }
   }
 
-  // Columns m*k .. m*k+k-1 of J (3 x f k, zeroed by the caller) for from <= m < f; returns
-  // E_{f-1} ... E_from q.
+  // Writes columns m*k .. m*k+k-1 of J (3 rows, at least f k columns) for from <= m < f only;
+  // returns E_{f-1} ... E_from q.
   Vec3 chain(int from, int f, const Vec3& q, Eigen::MatrixXd* J) const {
     const int k = JlA.empty() ? 0 : static_cast<int>(JlA[0].cols());
     // before[m] = E_{m-1} ... E_from applied to q (the point just before displacement m);
@@ -198,7 +198,7 @@ class WindowSolver {
       sys->H_tp[o.landmark].middleRows(first, cols).noalias() += w * J.transpose() * J_p;
       sys->g_p[o.landmark].noalias() += w * J_p.transpose() * r;
     }
-    // Depth prior on the points (camera 0 frame).
+    // Depth prior on the points (camera of their anchor frame).
     for (int l = 0; l < L; ++l) {
       const Vec3 d = s.points[l] - p_.points_cam0[l];
       cost += 0.5 * d.dot(prior_weight_[l] * d);
