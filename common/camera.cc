@@ -214,4 +214,25 @@ cv::Mat Undistorter::apply(const cv::Mat& image, int interpolation) const {
   return out;
 }
 
+cv::Mat rotateDepth(const cv::Mat& depth, const CameraModel& camera, const Mat3& R_colour_depth) {
+  cv::Mat out(depth.size(), CV_32FC1, cv::Scalar(0));
+  const Mat3 R_depth_colour = R_colour_depth.transpose();
+  for (int y = 0; y < depth.rows; ++y) {
+    float* z_out = out.ptr<float>(y);
+    for (int x = 0; x < depth.cols; ++x) {
+      // The colour pixel's ray in the depth camera; the depth pixel it crosses.
+      const Vec3 ray =
+          R_depth_colour * Vec3((x - camera.cx) / camera.fx, (y - camera.cy) / camera.fy, 1.0);
+      if (!(ray.z() > 0)) continue;
+      const int xd = static_cast<int>(std::lround(camera.fx * ray.x() / ray.z() + camera.cx));
+      const int yd = static_cast<int>(std::lround(camera.fy * ray.y() / ray.z() + camera.cy));
+      if (xd < 0 || yd < 0 || xd >= depth.cols || yd >= depth.rows) continue;
+      const float z = depth.at<float>(yd, xd);
+      // The point z ray / ray.z in the depth camera has z = 1 times that scale in the colour one.
+      if (z > 0) z_out[x] = static_cast<float>(z / ray.z());
+    }
+  }
+  return out;
+}
+
 }  // namespace radslam

@@ -37,6 +37,14 @@ cv::Matx33d cameraMatrix(const CameraModel& cam);
 /// Equidistant 4).
 void validateCamera(const CameraModel& cam);
 
+/// Depth (CV_32FC1, m, 0 = invalid) measured at another time than the colour image, brought to
+/// the colour image's time: R_colour_depth is the camera's rotation over the gap (the camera at
+/// colour time from the camera at depth time); the translation over the few ms is neglected.
+/// Each pixel takes the depth of the pixel the rotation carries it from (nearest, so that
+/// depth edges stay sharp), with its z in the colour camera; 0 where that pixel is outside or
+/// invalid. `camera`: the pinhole of `depth`.
+cv::Mat rotateDepth(const cv::Mat& depth, const CameraModel& camera, const Mat3& R_colour_depth);
+
 /// Maps images of a (possibly distorted) camera to a pinhole camera of the
 /// requested size. The maps are built once; apply() is one cv::remap.
 /// RadTan: new K from cv::getOptimalNewCameraMatrix with alpha = 0 (every

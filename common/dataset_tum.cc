@@ -19,7 +19,8 @@ struct StampedFile {
 struct TumEntry {
   double t = 0;  // colour time stamp, s
   std::string rgb;
-  std::string depth;  // "" in monocular sequences
+  std::string depth;   // "" in monocular sequences
+  double t_depth = 0;  // s
 };
 
 // "t file" rows of an index (rgb.txt, depth.txt) or, when the index is absent,
@@ -65,9 +66,9 @@ std::vector<TumEntry> readAssociations(const std::string& path) {
     const bool depth_first =
         row.fields[1].rfind("depth", 0) == 0 && row.fields[3].rfind("rgb", 0) == 0;
     if (depth_first) {
-      entries.push_back({t_second, row.fields[3], row.fields[1]});
+      entries.push_back({t_second, row.fields[3], row.fields[1], t_first});
     } else {
-      entries.push_back({t_first, row.fields[1], row.fields[3]});
+      entries.push_back({t_first, row.fields[1], row.fields[3], t_second});
     }
   }
   return entries;
@@ -119,13 +120,13 @@ class TumDataset : public DatasetReader {
       const std::vector<StampedFile> depth = readImageList(path, "depth.txt", "depth");
       has_depth_ = !depth.empty();
       if (!has_depth_) {
-        for (const StampedFile& f : rgb) entries_.push_back({f.t, f.file, ""});
+        for (const StampedFile& f : rgb) entries_.push_back({f.t, f.file, "", f.t});
       } else {
         std::vector<double> t_rgb, t_depth;
         for (const StampedFile& f : rgb) t_rgb.push_back(f.t);
         for (const StampedFile& f : depth) t_depth.push_back(f.t);
         for (const auto& [i, j] : associateTimes(t_rgb, t_depth, kMaxRgbDepthGapS))
-          entries_.push_back({rgb[i].t, rgb[i].file, depth[j].file});
+          entries_.push_back({rgb[i].t, rgb[i].file, depth[j].file, depth[j].t});
         if (entries_.empty() && !rgb.empty())
           throw std::runtime_error(path + ": no colour image has a depth image within 20 ms");
       }
@@ -160,6 +161,7 @@ class TumDataset : public DatasetReader {
                           error))
         return std::nullopt;
       frame.depth_wire_scale = kTumDepthMetresPerUnit;  // lossless: the source's quantisation
+      frame.depth_time_offset_s = entry.t_depth - entry.t;
     }
     return frame;
   }

@@ -44,6 +44,9 @@ struct Frame {
   cv::Mat right;
   double baseline_m = 0;
   cv::Mat depth;
+  // s, the depth image's time stamp minus the colour image's (TUM's Kinect: up to 20 ms, either
+  // way). Set by the dataset readers, for evaluation; not carried on the bus.
+  double depth_time_offset_s = 0;
   cv::Mat instance;
   cv::Mat class_id;
   // Wire encoding hints (not part of the data): colour compression, and the

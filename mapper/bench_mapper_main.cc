@@ -41,6 +41,9 @@ const char* kUsage = R"(usage: radslam-bench-mapper --dataset KIND:PATH [options
   --checkpoints C    PSNR evaluations during training, for the time to the final PSNR (default 10)
   --name NAME        row name in the RESULT line (default the dataset kind)
   --set KEY=VALUE    mapper overrides as radslam-mapper's (comma-separated)
+  --sync-colour S    s added to the colour images' stamps where ground truth is looked up
+  --sync-depth S     the same for the depth images' stamps (default 0 both; TUM fr1 measured
+                     -0.010 and -0.020, docs/mapper.md)
 )";
 
 double threadCpuSeconds() {
@@ -58,9 +61,18 @@ struct EvalFrame {
   cv::Mat depth;    // m, 0 = none
 };
 
+// Where each sensor's images meet the ground-truth clock: s added to an image's own stamp to
+// look its pose up (the TUM tools' --offset). Kinect colour and depth images are each stamped
+// with a delay of their own; docs/mapper.md has how they were measured.
+struct SensorSync {
+  double colour_s = 0;
+  double depth_s = 0;
+};
+
 class FrameSource {
  public:
-  FrameSource(const DatasetReader& dataset, int width, int height) : dataset_(dataset) {
+  FrameSource(const DatasetReader& dataset, int width, int height, SensorSync sync)
+      : dataset_(dataset), sync_(sync) {
     std::string error;
     const std::optional<Frame> first = dataset.frame(0, &error);
     if (!first) throw std::runtime_error(error);
@@ -68,7 +80,8 @@ class FrameSource {
   }
   const CameraModel& camera() const { return undistorter_->target(); }
   std::optional<EvalFrame> load(size_t i) const {
-    const std::optional<SE3> gt = poseAt(dataset_.groundTruth(), dataset_.timestamp(i));
+    const double t_colour = dataset_.timestamp(i);
+    const std::optional<SE3> gt = poseAt(dataset_.groundTruth(), t_colour + sync_.colour_s);
     if (!gt) return std::nullopt;
     std::string error;
     const std::optional<Frame> f = dataset_.frame(i, &error);
@@ -83,12 +96,21 @@ class FrameSource {
     cv::Mat color = f->color;
     if (color.type() == CV_8UC1) cv::cvtColor(color, color, cv::COLOR_GRAY2BGR);
     e.color = undistorter_->apply(color);
-    if (!f->depth.empty()) e.depth = undistorter_->apply(f->depth, cv::INTER_NEAREST);
+    if (!f->depth.empty()) {
+      e.depth = undistorter_->apply(f->depth, cv::INTER_NEAREST);
+      // Depth seen from where the camera was at another time: turned to the colour image's pose
+      // by the ground truth's rotation in between.
+      const double t_depth = t_colour + f->depth_time_offset_s + sync_.depth_s;
+      const std::optional<SE3> at_depth = poseAt(dataset_.groundTruth(), t_depth);
+      if (t_depth != t_colour + sync_.colour_s && at_depth)
+        e.depth = rotateDepth(e.depth, camera(), (gt->so3().inverse() * at_depth->so3()).matrix());
+    }
     return e;
   }
 
  private:
   const DatasetReader& dataset_;
+  SensorSync sync_;
   std::unique_ptr<Undistorter> undistorter_;
 };
 
@@ -173,6 +195,7 @@ int run(int argc, char** argv) {
   const int checkpoints = cl.getInt("checkpoints", 10);
   std::string name = cl.get("name", spec.substr(0, spec.find(':')));
   const std::string set = cl.get("set", "");
+  const SensorSync sync{cl.getDouble("sync-colour", 0), cl.getDouble("sync-depth", 0)};
   cl.finish();
   if (spec.empty()) throw std::runtime_error("--dataset KIND:PATH is required");
   if (source != "oracle" && source.rfind("tracker:", 0) != 0)
@@ -216,7 +239,7 @@ int run(int argc, char** argv) {
     if (!first) throw std::runtime_error(error);
     const int height =
         static_cast<int>(std::lround(double(width) * first->camera.height / first->camera.width));
-    frames = std::make_unique<FrameSource>(*dataset, width, height);
+    frames = std::make_unique<FrameSource>(*dataset, width, height, sync);
     for (size_t i = 0; i < n; i += kf_stride) {
       const std::optional<EvalFrame> f = frames->load(i);
       if (!f || f->depth.empty()) continue;
@@ -240,7 +263,7 @@ int run(int argc, char** argv) {
       cv::resize(kf.sigma, kf.sigma, size, 0, 0, cv::INTER_NEAREST);
     }
     kf_width = size.width;
-    frames = std::make_unique<FrameSource>(*dataset, size.width, size.height);
+    frames = std::make_unique<FrameSource>(*dataset, size.width, size.height, sync);
     std::vector<double> times(n);
     for (size_t i = 0; i < n; ++i) times[i] = dataset->timestamp(i);
     // Scale: median ratio of sensor to tracker depth when the dataset has depth (fr1/rpy barely
@@ -266,7 +289,9 @@ int run(int argc, char** argv) {
       std::nth_element(ratios.begin(), ratios.begin() + ratios.size() / 2, ratios.end());
       scale = ratios[ratios.size() / 2];
     }
-    const Sim3 S = alignToGroundTruth(tracked.trajectory, dataset->groundTruth(), scale);
+    Trajectory on_ground_truth_clock = tracked.trajectory;
+    for (StampedPose& pose : on_ground_truth_clock) pose.t += sync.colour_s;
+    const Sim3 S = alignToGroundTruth(on_ground_truth_clock, dataset->groundTruth(), scale);
     align_scale = S.scale();
     for (size_t k = 0; k < tracked.keyframes.size(); ++k) {
       if (matched[k] == SIZE_MAX) continue;

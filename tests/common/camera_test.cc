@@ -12,6 +12,8 @@
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "common/lie.h"
+
 namespace radslam {
 namespace {
 
@@ -289,6 +291,44 @@ TEST(Undistorter, NearestKeepsLabelsAndDepthsUnmixed) {
     mixed += (*it != 0.0f && *it != 2.5f);
   }
   EXPECT_GT(mixed, 100);
+}
+
+// A tilted plane n . X = 2 m seen by the depth camera, turned by a small rotation: the result
+// is the same plane seen by the turned camera, (R n) . X = 2 m.
+TEST(RotateDepth, ATurnedPlaneIsThePlaneSeenByTheTurnedCamera) {
+  const CameraModel cam = pinhole();
+  const Vec3 n_depth(0.2, 0.1, 1.0);
+  const auto planeDepth = [&](const Vec3& n, int x, int y) {
+    return 2.0 / n.dot(Vec3((x - cam.cx) / cam.fx, (y - cam.cy) / cam.fy, 1.0));
+  };
+  cv::Mat depth(cam.height, cam.width, CV_32FC1);
+  for (int y = 0; y < cam.height; ++y)
+    for (int x = 0; x < cam.width; ++x)
+      depth.at<float>(y, x) = static_cast<float>(planeDepth(n_depth, x, y));
+  EXPECT_EQ(cv::norm(rotateDepth(depth, cam, Mat3::Identity()), depth, cv::NORM_INF), 0.0);
+
+  const Mat3 R_colour_depth = SO3::exp(Vec3(0.02, -0.035, 0.01)).matrix();
+  const cv::Mat turned = rotateDepth(depth, cam, R_colour_depth);
+  const Vec3 n_colour = R_colour_depth * n_depth;
+  int covered = 0, empty_at_border = 0;
+  const auto nearBorder = [&](int x, int y) {
+    return std::min({x, y, cam.width - 1 - x, cam.height - 1 - y}) < 60;
+  };
+  for (int y = 0; y < cam.height; ++y)
+    for (int x = 0; x < cam.width; ++x) {
+      const float z = turned.at<float>(y, x);
+      if (z == 0) {
+        // A turn of 1-2 degrees moves the image by 10-40 pixels: only a band along the border
+        // sees what the depth camera did not.
+        empty_at_border += nearBorder(x, y);
+        continue;
+      }
+      ++covered;
+      // Nearest lookup: up to half a pixel's worth of plane slope.
+      EXPECT_NEAR(z, planeDepth(n_colour, x, y), 0.003 * z) << x << "," << y;
+    }
+  EXPECT_GT(covered, cam.width * cam.height * 8 / 10);
+  EXPECT_EQ(covered + empty_at_border, cam.width * cam.height);
 }
 
 TEST(Undistorter, PinholeInputIsAPureResize) {

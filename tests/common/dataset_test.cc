@@ -234,6 +234,7 @@ TEST_F(TumFolderTest, AssociatesColourAndDepthWithin20ms) {
   EXPECT_EQ(frame->camera.distortion, (std::vector<double>{0.1, -0.01, 0, 0, 0}));
   EXPECT_EQ(frame->depth.at<float>(5, 5), 2.0f);  // 10000 / 5000
   EXPECT_EQ(frame->depth.at<float>(0, 0), 0.0f);  // invalid stays 0
+  EXPECT_NEAR(frame->depth_time_offset_s, 0.005, 1e-9);
   const cv::Mat expected = noiseImage(12, 16, CV_8UC3, 1);
   EXPECT_EQ(cv::norm(frame->color, expected, cv::NORM_INF), 0.0);
 }
@@ -248,6 +249,7 @@ TEST_F(TumFolderTest, UsesAssociationsWhenPresentAndIsMonocularWithoutDepth) {
   const auto frame = paired->frame(0, &error);
   ASSERT_TRUE(frame) << error;
   EXPECT_EQ(frame->depth.at<float>(5, 5), 3.0f);
+  EXPECT_NEAR(frame->depth_time_offset_s, 0.005, 1e-9);
 
   fs::remove(dir_ + "/seq/associations.txt");
   fs::remove(dir_ + "/seq/depth.txt");
