@@ -41,6 +41,9 @@ const char* kUsage = R"(usage: radslam-bench-mapper --dataset KIND:PATH [options
   --checkpoints C    PSNR evaluations during training, for the time to the final PSNR (default 10)
   --name NAME        row name in the RESULT line (default the dataset kind)
   --set KEY=VALUE    mapper overrides as radslam-mapper's (comma-separated)
+  --edge-px P        oracle keyframes: depth within P pixels of the source image (scaled to
+                     the keyframe width) of a pixel more than 10 % deeper is not used (Kinect
+                     foreground edges, docs/mapper.md); default 8, 0 keeps it
   --sync-colour S    s added to the colour images' stamps where ground truth is looked up
   --sync-depth S     the same for the depth images' stamps (default 0 both; TUM fr1 measured
                      -0.010 and -0.020, docs/mapper.md)
@@ -195,6 +198,7 @@ int run(int argc, char** argv) {
   const int checkpoints = cl.getInt("checkpoints", 10);
   std::string name = cl.get("name", spec.substr(0, spec.find(':')));
   const std::string set = cl.get("set", "");
+  const int edge_px = cl.getInt("edge-px", 8);
   const SensorSync sync{cl.getDouble("sync-colour", 0), cl.getDouble("sync-depth", 0)};
   cl.finish();
   if (spec.empty()) throw std::runtime_error("--dataset KIND:PATH is required");
@@ -202,6 +206,7 @@ int run(int argc, char** argv) {
     throw std::runtime_error("--keyframes must be oracle or tracker:DIR, got '" + source + "'");
   if (!(budget > 0) || width < 16 || kf_stride < 1 || checkpoints < 1)
     throw std::runtime_error("--rays, --width, --kf-stride and --checkpoints must be positive");
+  if (edge_px < 0) throw std::runtime_error("--edge-px must be 0 or more");
 
   MapperParams params;
   {
@@ -240,13 +245,15 @@ int run(int argc, char** argv) {
     const int height =
         static_cast<int>(std::lround(double(width) * first->camera.height / first->camera.width));
     frames = std::make_unique<FrameSource>(*dataset, width, height, sync);
+    const int edge_kf_px =
+        static_cast<int>(std::lround(double(edge_px) * width / first->camera.width));
     for (size_t i = 0; i < n; i += kf_stride) {
       const std::optional<EvalFrame> f = frames->load(i);
       if (!f || f->depth.empty()) continue;
       kf_index.push_back(i);
       kf_pose.push_back(f->T_world_cam);
       kf_depth.push_back(f->depth);
-      kf_var.push_back(sensorDepthVariance(f->depth));
+      kf_var.push_back(sensorDepthVariance(f->depth, edge_kf_px));
     }
   } else {
     TrackerRun tracked = readTrackerRun(source.substr(8));

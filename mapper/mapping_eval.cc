@@ -80,8 +80,8 @@ std::optional<SE3> poseAt(const Trajectory& trajectory, double t, double max_gap
   return SE3(q, p);
 }
 
-cv::Mat sensorDepthVariance(const cv::Mat& depth) {
-  CV_Assert(depth.type() == CV_32FC1);
+cv::Mat sensorDepthVariance(const cv::Mat& depth, int foreground_edge_px) {
+  CV_Assert(depth.type() == CV_32FC1 && foreground_edge_px >= 0);
   // The depth range of each 3x3 neighbourhood over valid pixels (invalid ones neither raise
   // the maximum nor lower the minimum).
   cv::Mat valid = depth > 0;
@@ -90,6 +90,12 @@ cv::Mat sensorDepthVariance(const cv::Mat& depth) {
   depth.copyTo(for_min);
   for_min.setTo(1e9, ~valid);
   cv::erode(for_min, lo, cv::Mat());
+  // The deepest depth within the foreground edge band (invalid pixels are 0).
+  cv::Mat deepest;
+  if (foreground_edge_px > 0)
+    cv::dilate(depth, deepest,
+               cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * foreground_edge_px + 1,
+                                                                  2 * foreground_edge_px + 1)));
   cv::Mat var(depth.size(), CV_32FC1);
   for (int y = 0; y < depth.rows; ++y) {
     const float* z = depth.ptr<float>(y);
@@ -97,7 +103,8 @@ cv::Mat sensorDepthVariance(const cv::Mat& depth) {
     const float* l = lo.ptr<float>(y);
     float* v = var.ptr<float>(y);
     for (int x = 0; x < depth.cols; ++x) {
-      if (!(z[x] > 0) || !std::isfinite(z[x])) {
+      if (!(z[x] > 0) || !std::isfinite(z[x]) ||
+          (!deepest.empty() && deepest.at<float>(y, x) > 1.1f * z[x])) {
         v[x] = INFINITY;
         continue;
       }

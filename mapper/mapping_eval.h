@@ -44,7 +44,10 @@ std::optional<SE3> poseAt(const Trajectory& trajectory, double t, double max_gap
 /// Structured-light sensor noise (Nguyen, Izadi, Lovell 2012) plus depth discontinuities,
 /// where a pixel may see either side: sigma = 0.0012 + 0.0019 (z - 0.4)^2 + half the depth
 /// range of the 3x3 neighbourhood (m). Returns the variance (m^2); invalid depth -> infinity.
-cv::Mat sensorDepthVariance(const cv::Mat& depth);
+/// Pixels within `foreground_edge_px` (Chebyshev distance) of a pixel more than 10 % deeper get
+/// infinity too: a Kinect's foreground depth spills a few pixels over the background beside
+/// it, so there the measurement claims a surface that other views see through.
+cv::Mat sensorDepthVariance(const cv::Mat& depth, int foreground_edge_px = 0);
 
 /// A tracker run folder: trajectory.txt (every frame), keyframes.txt and
 /// keyframes/<%.6f stamp>.exr with channels "depth" and "sigma" (m, the tracker's scale).

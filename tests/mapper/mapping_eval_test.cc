@@ -83,6 +83,18 @@ TEST(MappingEval, SensorVarianceGrowsWithDepthAndAtEdges) {
   EXPECT_NEAR(sigma1, 0.0012 + 0.0019 * 0.36, 1e-6);
   EXPECT_GT(sigma3, sigma1);
   EXPECT_NEAR(std::sqrt(var.at<float>(2, 3)), sigma1 + 1.0, 1e-5);  // a 2 m step next to it
+
+  // With a foreground edge band of 2 px, the near side's last 2 columns are no measurement;
+  // the far side and the rest of the near side keep theirs.
+  const cv::Mat banded = sensorDepthVariance(depth, 2);
+  for (int y = 0; y < depth.rows; ++y)
+    for (int x = 0; x < depth.cols; ++x) {
+      const bool near_edge = x == 2 || x == 3;
+      EXPECT_EQ(std::isinf(banded.at<float>(y, x)), near_edge || (y == 0 && x == 0)) << x;
+      if (!std::isinf(banded.at<float>(y, x))) {
+        EXPECT_EQ(banded.at<float>(y, x), var.at<float>(y, x));
+      }
+    }
 }
 
 TEST(MappingEval, ReadsATrackerRunAndAlignsItToGroundTruth) {
