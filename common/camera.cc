@@ -228,7 +228,8 @@ cv::Mat rotateDepth(const cv::Mat& depth, const CameraModel& camera, const Mat3&
       const int yd = static_cast<int>(std::lround(camera.fy * ray.y() / ray.z() + camera.cy));
       if (xd < 0 || yd < 0 || xd >= depth.cols || yd >= depth.rows) continue;
       const float z = depth.at<float>(yd, xd);
-      // The point z ray / ray.z in the depth camera has z = 1 times that scale in the colour one.
+      // The depth pixel's point lies on the ray at (z / ray.z) ray; the colour camera's own ray
+      // has z = 1, so that scale is its z there.
       if (z > 0) z_out[x] = static_cast<float>(z / ray.z());
     }
   }

@@ -45,8 +45,8 @@ const char* kUsage = R"(usage: radslam-bench-mapper --dataset KIND:PATH [options
                      the keyframe width) of a pixel more than 10 % deeper is not used (Kinect
                      foreground edges, docs/mapper.md); default 8, 0 keeps it
   --sync-colour S    s added to the colour images' stamps where ground truth is looked up
-  --sync-depth S     the same for the depth images' stamps (default 0 both; TUM fr1 measured
-                     -0.010 and -0.020, docs/mapper.md)
+  --sync-depth S     the same for the depth images' stamps (default 0 both; TUM fr1/rpy measured
+                     -0.005 and -0.020, docs/mapper.md)
 )";
 
 double threadCpuSeconds() {
