@@ -144,6 +144,7 @@ void MapperNode::onControl(const Control& control) {
       break;
     case ControlCommand::kReset:
       max_keyframe_id_ = -1;  // the tracker numbers its keyframes from 0 again
+      newest_keyframe_utime_ = 0;
       missing_requests_.clear();
       snapshot_.reset();  // its blocks are gone
       mapper_.reset();
@@ -162,8 +163,13 @@ void MapperNode::addQueuedKeyframes() {
   for (auto& [id, keyframe] : queue_) {
     try {
       const KeyframeStore::InsertResult r = mapper_.addKeyframe(keyframe);
-      if (r != KeyframeStore::InsertResult::kIgnored)
-        reporter_.itemHandled(keyframe.frame_index, keyframe.header.utime);
+      if (r != KeyframeStore::InsertResult::kIgnored) {
+        // STATUS says how far the map is: a re-sent older keyframe counts as an item but does
+        // not move it back.
+        const bool newest = keyframe.header.utime > newest_keyframe_utime_;
+        if (newest) newest_keyframe_utime_ = keyframe.header.utime;
+        reporter_.itemHandled(newest ? keyframe.frame_index : -1, keyframe.header.utime);
+      }
     } catch (const std::invalid_argument& e) {
       // A malformed keyframe is skipped; the mapper keeps going.
       std::cerr << "radslam-mapper: warning: skipping " << e.what() << "\n";

@@ -113,6 +113,7 @@ class MapperNode {
   std::unique_ptr<Pacer> field_pacer_;  // every FIELD message (field_max_mb_per_s)
   double last_update_ = -1e9, last_status_ = -1e9, last_snapshot_ = -1e9, last_checkpoint_ = 0;
   int32_t max_keyframe_id_ = -1;             // highest keyframe id received
+  int64_t newest_keyframe_utime_ = 0;        // sensor time of the newest keyframe taken (us)
   std::map<int32_t, int> missing_requests_;  // times each missing id was asked for
   double last_missing_request_ = -1e9;
   struct ReplicaState {

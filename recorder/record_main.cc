@@ -101,7 +101,7 @@ int run(int argc, char** argv) {
       Keyframe keyframe;
       if (decodeOrWarn(ch, data, size, &keyframe)) {
         if (offset >= 0) archive.add(keyframe.keyframe_id, keyframe.version, offset);
-        recorder.onKeyframe(keyframe);
+        recorder.onKeyframe(keyframe, recv_utime);
       }
     } else if (is(ch, channel::kObjects)) {
       ObjectList objects;
@@ -111,7 +111,7 @@ int run(int argc, char** argv) {
       if (decodeOrWarn(ch, data, size, &objects)) recorder.onGroundTruthObjects(objects);
     } else if (is(ch, channel::kStatus)) {
       Status status;
-      if (decodeOrWarn(ch, data, size, &status)) recorder.onStatus(status);
+      if (decodeOrWarn(ch, data, size, &status)) recorder.onStatus(status, recv_utime);
     }
   };
   // Resuming, what the log holds goes into the exports as if heard now (at its own receive
@@ -202,7 +202,8 @@ int run(int argc, char** argv) {
   }
   log.flush();
   reporter.setState(ProcessState::kDone);
-  recorder.onStatus(reporter.make());
+  const Status own = reporter.make();
+  recorder.onStatus(own, own.header.utime);
   if (progress) std::cout << (tty ? "\r\033[K" : "") << recorder.progressLine(elapsed()) << "\n";
   const std::string summary =
       recorder.exportRun(out_dir, elapsed(), log.eventsWritten(), log.bytesWritten());

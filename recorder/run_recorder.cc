@@ -136,8 +136,10 @@ void RunRecorder::onGroundTruth(const PoseStamped& pose) {
   ground_truth_[pose.header.utime] = pose;
 }
 
-void RunRecorder::onKeyframe(const Keyframe& keyframe) {
+void RunRecorder::onKeyframe(const Keyframe& keyframe, int64_t recv_utime) {
   ++keyframe_messages_;
+  if (keyframe.header.utime > mapper_handled_utime_)
+    keyframe_arrival_.emplace(keyframe.header.utime, recv_utime);
   auto it = keyframes_.find(keyframe.keyframe_id);
   if (it != keyframes_.end() && it->second.version > keyframe.version) return;
   if (params_.keyframe_exr_dir.empty() || !params_.export_keyframe_exr) {
@@ -167,7 +169,16 @@ void RunRecorder::onGroundTruthObjects(const ObjectList& objects) {
   ground_truth_objects_.push_back(objects);
 }
 
-void RunRecorder::onStatus(const Status& status) { statuses_[status.process] = status; }
+void RunRecorder::onStatus(const Status& status, int64_t recv_utime) {
+  statuses_[status.process] = status;
+  if (status.process != "mapper" || status.last_frame_utime <= mapper_handled_utime_) return;
+  mapper_handled_utime_ = status.last_frame_utime;
+  // The mapper takes keyframes in order: every one up to its last is handled.
+  const auto end = keyframe_arrival_.upper_bound(mapper_handled_utime_);
+  for (auto it = keyframe_arrival_.begin(); it != end; ++it)
+    mapper_lag_s_.push_back(static_cast<double>(recv_utime - it->second) * 1e-6);
+  keyframe_arrival_.erase(keyframe_arrival_.begin(), end);
+}
 
 std::optional<ProcessState> RunRecorder::processState(const std::string& process) const {
   auto it = statuses_.find(process);
@@ -236,6 +247,17 @@ void RunRecorder::onMessage(const std::string& channel, int64_t recv_utime, size
   t.max_bytes_in_1s = std::max(t.max_bytes_in_1s, t.recent_bytes);
 }
 
+RunRecorder::MapperLag RunRecorder::mapperLag() const {
+  MapperLag lag;
+  lag.keyframes = static_cast<int>(mapper_lag_s_.size());
+  if (mapper_lag_s_.empty()) return lag;
+  std::vector<double> sorted = mapper_lag_s_;
+  std::sort(sorted.begin(), sorted.end());
+  lag.median_s = sorted[sorted.size() / 2];
+  lag.max_s = sorted.back();
+  return lag;
+}
+
 std::string RunRecorder::exportRun(const std::string& out_dir, double wall_s, int64_t log_events,
                                    int64_t log_bytes) const {
   fs::create_directories(out_dir);
@@ -297,6 +319,12 @@ std::string RunRecorder::exportRun(const std::string& out_dir, double wall_s, in
     json << "  \"ate_rmse_m\": null,\n";
     json << "  \"evaluation\": \"" << jsonEscape(eval_note) << "\",\n";
   }
+  const MapperLag lag = mapperLag();
+  if (lag.keyframes > 0) {
+    json << "  \"mapper_lag_median_s\": " << jsonNumber(lag.median_s) << ",\n";
+    json << "  \"mapper_lag_max_s\": " << jsonNumber(lag.max_s) << ",\n";
+  }
+  json << "  \"mapper_keyframes_unhandled\": " << keyframe_arrival_.size() << ",\n";
   bool first = true;
   json << "  \"processes\": [";
   for (const auto& [name, status] : statuses_) {
@@ -356,6 +384,15 @@ std::string RunRecorder::exportRun(const std::string& out_dir, double wall_s, in
          << std::setprecision(3) << errors.rpe_rot_deg << " deg per frame\n";
   } else {
     text << "  evaluation             " << eval_note << "\n";
+  }
+  if (lag.keyframes > 0 || !keyframe_arrival_.empty()) {
+    text << "  mapper lag             ";
+    if (lag.keyframes > 0)
+      text << std::setprecision(1) << "median " << lag.median_s << " s, max " << lag.max_s
+           << " s from arrival to handled, " << lag.keyframes << " keyframes";
+    if (!keyframe_arrival_.empty())
+      text << (lag.keyframes > 0 ? "; " : "") << keyframe_arrival_.size() << " never handled";
+    text << "\n";
   }
   text << "  LCM log                " << log_events << " messages, " << std::setprecision(1)
        << static_cast<double>(log_bytes) / 1e6 << " MB\n";

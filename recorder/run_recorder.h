@@ -71,10 +71,11 @@ class RunRecorder {
   void onCameraFrame(int64_t utime);
   void onPose(const PoseStamped& pose);
   void onGroundTruth(const PoseStamped& pose);
-  void onKeyframe(const Keyframe& keyframe);
+  /// recv_utime: when the message arrived (us, wall clock), for the mapper's lag.
+  void onKeyframe(const Keyframe& keyframe, int64_t recv_utime);
   void onObjects(const ObjectList& objects);
   void onGroundTruthObjects(const ObjectList& objects);
-  void onStatus(const Status& status);
+  void onStatus(const Status& status, int64_t recv_utime);
   /// Traffic accounting: every message seen on the bus (any channel), with its receive time
   /// (us) and encoded size (bytes).
   void onMessage(const std::string& channel, int64_t recv_utime, size_t bytes);
@@ -93,6 +94,13 @@ class RunRecorder {
   Trajectory trajectory() const;
   Trajectory keyframeTrajectory() const;
   Trajectory groundTruth() const;
+  /// How long keyframes waited, from their arrival on the bus until a mapper STATUS reported
+  /// them handled (its resolution: the STATUS period, 0.5 s by default).
+  struct MapperLag {
+    int keyframes = 0;  // handled so far
+    double median_s = 0, max_s = 0;
+  };
+  MapperLag mapperLag() const;
 
  private:
   RecorderParams params_;
@@ -106,6 +114,11 @@ class RunRecorder {
   std::vector<ObjectList> objects_;
   std::vector<ObjectList> ground_truth_objects_;
   std::map<std::string, Status> statuses_;  // latest per process
+  // Mapper lag: each keyframe's first arrival (us, by its sensor utime) until a mapper STATUS
+  // reports it handled (to within the STATUS period), then the arrival-to-handled times (s).
+  std::map<int64_t, int64_t> keyframe_arrival_;
+  int64_t mapper_handled_utime_ = 0;  // sensor utime of the mapper's last handled keyframe
+  std::vector<double> mapper_lag_s_;
   struct ChannelTraffic {
     int64_t messages = 0;
     int64_t bytes = 0;

@@ -58,10 +58,10 @@ void exportsTrajectoriesKeyframesAndEvaluation(bool exr_on_arrival) {
   keyframe.keyframe_id = 0;
   keyframe.depth = cv::Mat(4, 5, CV_32F, cv::Scalar(2.0f));
   keyframe.depth_var = cv::Mat(4, 5, CV_32F, cv::Scalar(0.04f));
-  recorder.onKeyframe(keyframe);
+  recorder.onKeyframe(keyframe, 50'000'000);
   keyframe.version = 1;
   keyframe.depth.setTo(3.0f);
-  recorder.onKeyframe(keyframe);
+  recorder.onKeyframe(keyframe, 51'000'000);
   if (exr_on_arrival) {  // on disk already, before any export (a killed recorder keeps it)
     EXPECT_FLOAT_EQ(readExrChannel(out + "/keyframes/1.000000.exr", "depth").at<float>(0, 0), 3.0f);
   }
@@ -70,7 +70,7 @@ void exportsTrajectoriesKeyframesAndEvaluation(bool exr_on_arrival) {
   tracker.fps = 42;
   tracker.peak_rss_mb = 100;
   tracker.values = {{"window", 8}};
-  recorder.onStatus(tracker);
+  recorder.onStatus(tracker, 52'000'000);
 
   const std::string summary = recorder.exportRun(out, 1.5, 10, 1000);
   EXPECT_NE(summary.find("keyframes              1 (1 depth/sigma EXR)"), std::string::npos)
@@ -112,6 +112,46 @@ TEST(RunRecorderTest, SummaryWithoutGroundTruthSaysSo) {
   const std::string summary = recorder.exportRun(out, 0.1, 1, 10);
   EXPECT_NE(summary.find("no ground truth"), std::string::npos) << summary;
   EXPECT_NE(readFile(out + "/summary.json").find("\"ate_rmse_m\": null"), std::string::npos);
+}
+
+// Keyframes at sensor times 1, 2, 3 s arrive at wall times 10, 11, 12 s; the mapper reports
+// the first handled at 10.5 s and the first two at 13 s; the third never.
+TEST(RunRecorderTest, MeasuresHowLongKeyframesWaitForTheMapper) {
+  RunRecorder recorder(RecorderParams{});
+  Keyframe keyframe;
+  for (int k = 0; k < 3; ++k) {
+    keyframe.keyframe_id = k;
+    keyframe.header.utime = (k + 1) * 1'000'000;
+    recorder.onKeyframe(keyframe, (10 + k) * 1'000'000);
+  }
+  Status mapper;
+  mapper.process = "mapper";
+  mapper.last_frame_utime = 1'000'000;
+  recorder.onStatus(mapper, 10'500'000);
+  // A re-sent version of a handled keyframe does not wait again; other processes do not count.
+  keyframe.keyframe_id = 0;
+  keyframe.header.utime = 1'000'000;
+  keyframe.version = 1;
+  recorder.onKeyframe(keyframe, 12'500'000);
+  Status tracker;
+  tracker.process = "tracker";
+  tracker.last_frame_utime = 3'000'000;
+  recorder.onStatus(tracker, 12'600'000);
+  mapper.last_frame_utime = 2'000'000;
+  recorder.onStatus(mapper, 13'000'000);
+
+  const RunRecorder::MapperLag lag = recorder.mapperLag();
+  EXPECT_EQ(lag.keyframes, 2);
+  EXPECT_DOUBLE_EQ(lag.max_s, 2.0);     // the second: 11 -> 13 s
+  EXPECT_DOUBLE_EQ(lag.median_s, 2.0);  // of {0.5, 2.0}, the upper one
+  const std::string out = ::testing::TempDir() + "/run_recorder_test_lag";
+  std::filesystem::remove_all(out);
+  const std::string summary = recorder.exportRun(out, 4.0, 10, 1000);
+  EXPECT_NE(summary.find("mapper lag             median 2.0 s, max 2.0 s from arrival to "
+                         "handled, 2 keyframes; 1 never handled"),
+            std::string::npos)
+      << summary;
+  EXPECT_NE(readFile(out + "/summary.json").find("\"mapper_lag_max_s\": 2"), std::string::npos);
 }
 
 TEST(RunRecorderTest, ReportsTrafficPerChannel) {
