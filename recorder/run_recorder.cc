@@ -324,7 +324,10 @@ std::string RunRecorder::exportRun(const std::string& out_dir, double wall_s, in
     json << "  \"mapper_lag_median_s\": " << jsonNumber(lag.median_s) << ",\n";
     json << "  \"mapper_lag_max_s\": " << jsonNumber(lag.max_s) << ",\n";
   }
-  json << "  \"mapper_keyframes_unhandled\": " << keyframe_arrival_.size() << ",\n";
+  // Without a mapper on the bus, no keyframe is waiting for one.
+  const bool with_mapper = statuses_.count("mapper") > 0;
+  if (with_mapper)
+    json << "  \"mapper_keyframes_unhandled\": " << keyframe_arrival_.size() << ",\n";
   bool first = true;
   json << "  \"processes\": [";
   for (const auto& [name, status] : statuses_) {
@@ -385,7 +388,7 @@ std::string RunRecorder::exportRun(const std::string& out_dir, double wall_s, in
   } else {
     text << "  evaluation             " << eval_note << "\n";
   }
-  if (lag.keyframes > 0 || !keyframe_arrival_.empty()) {
+  if (with_mapper && (lag.keyframes > 0 || !keyframe_arrival_.empty())) {
     text << "  mapper lag             ";
     if (lag.keyframes > 0)
       text << std::setprecision(1) << "median " << lag.median_s << " s, max " << lag.max_s

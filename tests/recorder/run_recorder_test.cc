@@ -76,6 +76,7 @@ void exportsTrajectoriesKeyframesAndEvaluation(bool exr_on_arrival) {
   EXPECT_NE(summary.find("keyframes              1 (1 depth/sigma EXR)"), std::string::npos)
       << summary;
   EXPECT_NE(summary.find("ATE RMSE (sim3)"), std::string::npos) << summary;
+  EXPECT_EQ(summary.find("mapper lag"), std::string::npos) << summary;  // no mapper ran
 
   EXPECT_EQ(readTumTrajectory(out + "/trajectory.txt").size(), 30u);
   EXPECT_EQ(readTumTrajectory(out + "/groundtruth.txt").size(), 30u);
