@@ -32,8 +32,8 @@ class BinaryWriter {
     bytes(&v, sizeof(T));
   }
   void bytes(const void* data, size_t n) { out_.write(static_cast<const char*>(data), n); }
-  template <class T>
-  void vec(const std::vector<T>& v) {
+  template <class T, class Alloc>
+  void vec(const std::vector<T, Alloc>& v) {
     put<uint64_t>(v.size());
     if (!v.empty()) bytes(v.data(), v.size() * sizeof(T));
   }
@@ -74,8 +74,8 @@ class BinaryReader {
     return v;
   }
   /// `expected` (when given) is the size the array must have.
-  template <class T>
-  void vec(std::vector<T>* v, size_t expected = SIZE_MAX) {
+  template <class T, class Alloc>
+  void vec(std::vector<T, Alloc>* v, size_t expected = SIZE_MAX) {
     const uint64_t n = get<uint64_t>();
     if (n > (data_.size() - pos_) / sizeof(T))
       fail("truncated: array longer than the rest of the file");

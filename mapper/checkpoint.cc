@@ -185,6 +185,7 @@ void Mapper::loadCheckpoint(const std::string& path) {
   }
   if (!r.done()) r.fail("trailing bytes");
   field_ = std::move(field);
+  field_.reserveBlocks(params_.max_fine_blocks);
   trainer_.optimizer() = std::move(adam);
   trainer_.restoreState(steps, rng_state);
   keyframes_ = std::move(store);

@@ -66,6 +66,13 @@ Field::Field(const FieldGeometry& geometry) : geometry_(geometry) {
   }
 }
 
+void Field::reserveBlocks(int blocks_per_level) {
+  for (Level& lv : levels_) {
+    lv.blocks.reserve(blocks_per_level);
+    lv.data.reserve(size_t(blocks_per_level) * kBlockVoxels * channels_);
+  }
+}
+
 size_t Field::totalBlocks() const {
   size_t n = 0;
   for (const Level& level : levels_) n += level.blocks.size();

@@ -31,6 +31,8 @@
 
 #include <Eigen/Core>
 
+#include "mapper/large_vector.h"
+
 namespace radslam {
 
 /// What fixes the layout and meaning of a field's parameters. Two fields with equal geometry
@@ -100,6 +102,15 @@ class Field {
   /// so that trilinear interpolation at p reads allocated voxels only. Returns the number of
   /// blocks newly allocated.
   int allocateAround(const Eigen::Vector3f& p);
+
+  /// Reserves address space for this many blocks per level, so that growing up to it never
+  /// moves the parameters (a move of hundreds of MB stalls training for seconds). Pages are
+  /// committed only as blocks are allocated.
+  void reserveBlocks(int blocks_per_level);
+  /// Blocks a level holds before its parameters move.
+  int blockCapacity(int level) const {
+    return static_cast<int>(levels_[level].data.capacity() / (size_t(kBlockVoxels) * channels_));
+  }
 
   /// Parameters of a level: numBlocks(level) * kBlockVoxels * channels() floats, block-major,
   /// then voxel (x fastest, then y, then z), then channel. Pointers stay valid until the next
@@ -199,7 +210,7 @@ class Field {
     double voxel_size = 0;
     float inv_voxel_size = 0;
     std::vector<BlockInfo> blocks;
-    std::vector<float> data;
+    LargeVector<float> data;
     std::unordered_map<uint64_t, int> map;  // key -> block id
     // Dense index over a box of block coordinates: fast lookups in the hot loops. Falls back to
     // the hash map when the box would be too large.

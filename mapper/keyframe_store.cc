@@ -117,7 +117,15 @@ KeyframeStore::InsertResult KeyframeStore::insert(const Keyframe& keyframe) {
     for (int x = 0; x < w; ++x)
       if (mask.empty() || mask.at<uint8_t>(y, x) == 0) entry.pixels.push_back(y * w + x);
   if (existing >= 0) {
-    // The tracker's refined pose supersedes the mapper's refinement; statistics restart.
+    // The tracker's refined pose supersedes the mapper's refinement; statistics restart. The
+    // same image (a re-sent keyframe) keeps its exposure as trained.
+    const KeyframeEntry& old = entries_[existing];
+    if (old.keyframe.header.utime == keyframe.header.utime) {
+      entry.exposure = old.exposure;
+      entry.exposure_m = old.exposure_m;
+      entry.exposure_v = old.exposure_v;
+      entry.exposure_steps = old.exposure_steps;
+    }
     entries_[existing] = std::move(entry);
     return InsertResult::kReplaced;
   }

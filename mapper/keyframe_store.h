@@ -47,7 +47,8 @@ class KeyframeStore {
   /// and inv_depth_var when those exist); dynamic_mask CV_8UC1 or empty. Non-finite or
   /// negative depths become 0 (unknown), bad variances become infinite (no depth weight).
   /// Throws std::invalid_argument naming the keyframe and what is wrong. The images are
-  /// deep-copied.
+  /// deep-copied. A replacement of the same image (same header time) keeps its exposure; the
+  /// rest restarts.
   InsertResult insert(const Keyframe& keyframe);
 
   int size() const { return static_cast<int>(entries_.size()); }

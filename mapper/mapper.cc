@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <climits>
 #include <cmath>
 #include <iostream>
 #include <limits>
@@ -87,10 +88,11 @@ void Mapper::initializeField() {
   field_ = Field(FieldGeometry::make(fine, params_.levels, params_.level_ratio, params_.sh_degree,
                                      static_cast<float>(params_.density_bias)));
   field_.restoreVersion(version_floor_);
+  field_.reserveBlocks(params_.max_fine_blocks);
   for (int i = 0; i < keyframes_.size(); ++i) allocateFor(keyframes_.entry(i));
 }
 
-void Mapper::allocateFor(const KeyframeEntry& entry) {
+void Mapper::allocateFor(const KeyframeEntry& entry, bool new_blocks_only) {
   if (!field_.initialized()) return;
   const Keyframe& kf = entry.keyframe;
   const SamplingParams sp = trainer_.samplingFor(field_.geometry().fineVoxelSize());
@@ -139,10 +141,10 @@ void Mapper::allocateFor(const KeyframeEntry& entry) {
         field_.allocateAround(t + (lo + (hi - lo) * i / steps) * dir);
     }
   }
-  if (params_.seed_density > 0) seedSurface(entry, first_new);
+  if (params_.seed_density > 0) seedSurface(entry, first_new, new_blocks_only);
 }
 
-void Mapper::seedSurface(const KeyframeEntry& entry, int first_new_block) {
+void Mapper::seedSurface(const KeyframeEntry& entry, int first_new_block, bool new_blocks_only) {
   // Only untouched lattice points (every channel still 0: never seeded, never trained) are
   // seeded, in any fine block; trained ones are left alone. Density: the 8 lattice points
   // around each pixel's surface point get the seed density, an opaque layer about two voxels
@@ -176,12 +178,12 @@ void Mapper::seedSurface(const KeyframeEntry& entry, int first_new_block) {
     slot[b] = static_cast<int>(slot_block.size());
     slot_block.push_back(b);
   }
-  std::vector<float> sums(slot_block.size() * Field::kBlockVoxels * 4, 0.f);
-  std::vector<uint8_t> surface(slot_block.size() * Field::kBlockVoxels, 0);
+  LargeVector<float> sums(slot_block.size() * Field::kBlockVoxels * 4, 0.f);
+  LargeVector<uint8_t> surface(slot_block.size() * Field::kBlockVoxels, 0);
   // Index of lattice point i among the slots' points, -1 when its block is unallocated.
   auto pointIndex = [&](const Eigen::Vector3i& i) -> int64_t {
     const int b = field_.findBlock(fine, blockOf(i.x()), blockOf(i.y()), blockOf(i.z()));
-    if (b < 0) return -1;
+    if (b < 0 || (new_blocks_only && b < first_new_block)) return -1;
     if (slot[b] < 0) {
       slot[b] = static_cast<int>(slot_block.size());
       slot_block.push_back(b);
@@ -192,11 +194,32 @@ void Mapper::seedSurface(const KeyframeEntry& entry, int first_new_block) {
            Field::voxelInBlock(localOf(i.x()), localOf(i.y()), localOf(i.z()));
   };
   const int band_steps = static_cast<int>(2 * kColorBand);  // half-voxel steps either side
+  // With new_blocks_only, most pixels' bands lie in old blocks: those are skipped on a test of
+  // the blocks that the band's bounding box (grown by the pixel and a lattice cell) meets.
+  auto reachesNewBlock = [&](int x, int y, float d, float footprint) {
+    const Eigen::Vector3f dir = R * Eigen::Vector3f(static_cast<float>((x - cam.cx) / cam.fx),
+                                                    static_cast<float>((y - cam.cy) / cam.fy), 1.f);
+    const Eigen::Vector3f a = t + (d - kColorBand * s) * dir, b = t + (d + kColorBand * s) * dir;
+    const Eigen::Vector3f margin = Eigen::Vector3f::Constant(footprint + s);
+    const Eigen::Vector3i lo = ((a.cwiseMin(b) - margin) * inv).array().floor().cast<int>();
+    const Eigen::Vector3i hi = ((a.cwiseMax(b) + margin) * inv).array().floor().cast<int>();
+    for (int bz = blockOf(lo.z()); bz <= blockOf(hi.z()); ++bz)
+      for (int by = blockOf(lo.y()); by <= blockOf(hi.y()); ++by)
+        for (int bx = blockOf(lo.x()); bx <= blockOf(hi.x()); ++bx)
+          if (field_.findBlock(fine, bx, by, bz) >= first_new_block) return true;
+    return false;
+  };
   for (int y = 0; y < cam.height; ++y) {
     for (int x = 0; x < cam.width; ++x) {
       const float d = kf.depth.at<float>(y, x);
       if (!(d > 0) || !std::isfinite(kf.depth_var.at<float>(y, x))) continue;  // not guesses
       if (!mask.empty() && mask.at<uint8_t>(y, x) != 0) continue;
+      const float footprint = d / static_cast<float>(std::min(cam.fx, cam.fy));  // m per pixel
+      // Pixels much smaller than a voxel: every stride-th one in x and y, at most a voxel
+      // apart on the surface, still leaves no hole in the layer (each writes its whole cell).
+      const int stride = std::max(1, static_cast<int>(s / footprint));
+      if (x % stride != 0 || y % stride != 0) continue;
+      if (new_blocks_only && !reachesNewBlock(x, y, d, footprint)) continue;
       float rgb[3];
       if (kf.color.channels() == 3) {
         const cv::Vec3b c = kf.color.at<cv::Vec3b>(y, x);
@@ -207,7 +230,6 @@ void Mapper::seedSurface(const KeyframeEntry& entry, int first_new_block) {
         rgb[0] = rgb[1] = rgb[2] = kf.color.at<uint8_t>(y, x) / 255.f;
       }
       for (int j = 0; j < 3; ++j) rgb[j] = (rgb[j] - offset[j]) / gain[j];
-      const float footprint = d / static_cast<float>(std::min(cam.fx, cam.fy));  // m per pixel
       const int k = std::clamp(static_cast<int>(std::ceil(footprint / (2 * s))), 1, 4);
       for (int sy = 0; sy < k; ++sy)
         for (int sx = 0; sx < k; ++sx) {
@@ -215,17 +237,24 @@ void Mapper::seedSurface(const KeyframeEntry& entry, int first_new_block) {
           const Eigen::Vector3f dir =
               R * Eigen::Vector3f(static_cast<float>((u - cam.cx) / cam.fx),
                                   static_cast<float>((v - cam.cy) / cam.fy), 1.f);
+          // Half-voxel steps: a cell met by consecutive steps counts the pixel once.
+          Eigen::Vector3i previous = Eigen::Vector3i::Constant(INT32_MIN);
           for (int step = -band_steps; step <= band_steps; ++step) {
             const float z = d + 0.5f * s * step;
             if (!(z > 0)) continue;
             const Eigen::Vector3f p = t + z * dir;
             const Eigen::Vector3i i0 = (p * inv).array().floor().cast<int>();
+            const bool same_cell = i0 == previous;
+            previous = i0;
+            if (same_cell && step != 0) continue;
             for (int c = 0; c < 8; ++c) {
               const int64_t q = pointIndex(i0 + Eigen::Vector3i(c & 1, (c >> 1) & 1, c >> 2));
               if (q < 0) continue;
-              float* sum = &sums[static_cast<size_t>(q) * 4];
-              for (int j = 0; j < 3; ++j) sum[j] += rgb[j];
-              sum[3] += 1.f;
+              if (!same_cell) {
+                float* sum = &sums[static_cast<size_t>(q) * 4];
+                for (int j = 0; j < 3; ++j) sum[j] += rgb[j];
+                sum[3] += 1.f;
+              }
               if (step == 0) surface[q] = 1;
             }
           }
@@ -290,6 +319,9 @@ void Mapper::seedSurface(const KeyframeEntry& entry, int first_new_block) {
 
 KeyframeStore::InsertResult Mapper::addKeyframe(const Keyframe& keyframe) {
   if (retired(keyframe.keyframe_id)) return KeyframeStore::InsertResult::kIgnored;
+  const int existing = keyframes_.find(keyframe.keyframe_id);
+  const bool same_image =
+      existing >= 0 && keyframes_.entry(existing).keyframe.header.utime == keyframe.header.utime;
   KeyframeStore::InsertResult result = keyframes_.insert(keyframe);
   if (result != KeyframeStore::InsertResult::kIgnored && params_.fill_depth_holes) {
     // Holes get a guessed depth with infinite variance (the store keeps the normalised images).
@@ -307,8 +339,11 @@ KeyframeStore::InsertResult Mapper::addKeyframe(const Keyframe& keyframe) {
     initializeField();  // allocates for every stored keyframe
   } else {
     KeyframeEntry& entry = keyframes_.entry(keyframes_.find(keyframe.keyframe_id));
-    initExposure(&entry);  // before its own blocks and seeds change the field
-    allocateFor(entry);
+    // A re-sent keyframe (the same image, refined pose and depth) keeps its exposure and what
+    // its earlier version seeded: only blocks new to this version are seeded.
+    const bool resent = same_image && result == KeyframeStore::InsertResult::kReplaced;
+    if (!resent) initExposure(&entry);  // before its own blocks and seeds change the field
+    allocateFor(entry, resent);
   }
   if (keyframes_.size() > params_.max_keyframes) retireMostRedundant(keyframe.keyframe_id);
   return result;

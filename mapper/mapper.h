@@ -79,8 +79,9 @@ class Mapper {
   explicit Mapper(const MapperParams& params = MapperParams());
 
   /// Stores (or replaces, by version) a keyframe and allocates the field around its depth.
-  /// The first keyframe with depth fixes the voxel sizes. Throws std::invalid_argument on a
-  /// malformed keyframe (KeyframeStore::insert).
+  /// The first keyframe with depth fixes the voxel sizes. A re-sent keyframe (same image) costs
+  /// little: its exposure is kept and only the blocks its new depth adds are seeded. Throws
+  /// std::invalid_argument on a malformed keyframe (KeyframeStore::insert).
   KeyframeStore::InsertResult addKeyframe(const Keyframe& keyframe);
 
   /// Forgets every keyframe and the field (CONTROL RESET).
@@ -127,8 +128,11 @@ class Mapper {
 
  private:
   void initializeField();
-  void allocateFor(const KeyframeEntry& entry);
-  void seedSurface(const KeyframeEntry& entry, int first_new_block);
+  /// Allocates around the keyframe's depth and seeds the surface it sees: in any untouched
+  /// voxel, or only in the new blocks when `new_blocks_only` (a re-sent keyframe, whose earlier
+  /// version seeded the rest).
+  void allocateFor(const KeyframeEntry& entry, bool new_blocks_only = false);
+  void seedSurface(const KeyframeEntry& entry, int first_new_block, bool new_blocks_only);
   void initExposure(KeyframeEntry* entry) const;
   void retireMostRedundant(int32_t newest_id);
 

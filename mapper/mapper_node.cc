@@ -175,6 +175,7 @@ void MapperNode::addQueuedKeyframes() {
       std::cerr << "radslam-mapper: warning: skipping " << e.what() << "\n";
       reporter_.setError(e.what());
     }
+    heartbeat();  // a burst of keyframes takes a while: report each as it is handled
   }
   queue_.clear();
 }

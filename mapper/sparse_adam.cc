@@ -17,6 +17,11 @@ void SparseAdam::resize(const Field& field) {
   v_.resize(levels);
   steps_.resize(levels);
   for (int l = 0; l < levels; ++l) {
+    // The field's reservation, so that growth does not move the moments either.
+    const size_t capacity = size_t(field.blockCapacity(l)) * Field::kBlockVoxels;
+    m_[l].reserve(capacity * field.channels());
+    v_[l].reserve(capacity * field.channels());
+    steps_[l].reserve(capacity);
     m_[l].resize(field.levelSize(l), 0.f);
     v_[l].resize(field.levelSize(l), 0.f);
     steps_[l].resize(size_t(field.numBlocks(l)) * Field::kBlockVoxels, 0);

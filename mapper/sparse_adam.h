@@ -34,19 +34,19 @@ class SparseAdam {
   int64_t step(Field* field, FieldGradient* grad);
 
   // State, for checkpoints: per level, parallel to the field's parameters (steps per voxel).
-  std::vector<std::vector<float>>& firstMoments() { return m_; }
-  std::vector<std::vector<float>>& secondMoments() { return v_; }
-  std::vector<std::vector<int32_t>>& steps() { return steps_; }
-  const std::vector<std::vector<float>>& firstMoments() const { return m_; }
-  const std::vector<std::vector<float>>& secondMoments() const { return v_; }
-  const std::vector<std::vector<int32_t>>& steps() const { return steps_; }
+  std::vector<LargeVector<float>>& firstMoments() { return m_; }
+  std::vector<LargeVector<float>>& secondMoments() { return v_; }
+  std::vector<LargeVector<int32_t>>& steps() { return steps_; }
+  const std::vector<LargeVector<float>>& firstMoments() const { return m_; }
+  const std::vector<LargeVector<float>>& secondMoments() const { return v_; }
+  const std::vector<LargeVector<int32_t>>& steps() const { return steps_; }
 
  private:
   void buildTables();
 
   AdamParams params_;
-  std::vector<std::vector<float>> m_, v_;
-  std::vector<std::vector<int32_t>> steps_;
+  std::vector<LargeVector<float>> m_, v_;
+  std::vector<LargeVector<int32_t>> steps_;
   std::vector<float> correction1_, correction2_;  // 1 / (1 - beta^t), t = 0..kTable
   float table_beta1_ = -1, table_beta2_ = -1;
 };

@@ -234,6 +234,11 @@ void FieldGradient::resize(const Field& field) {
   touched_flag_.resize(levels);
   touched_.resize(levels);
   for (int l = 0; l < levels; ++l) {
+    // The field's reservation, so that growth does not move the arrays either.
+    const size_t capacity = field.blockCapacity(l);
+    grad_[l].reserve(capacity * Field::kBlockVoxels * field.channels());
+    voxel_bits_[l].reserve(capacity * kWords);
+    touched_flag_[l].reserve(capacity);
     grad_[l].resize(field.levelSize(l), 0.f);
     voxel_bits_[l].resize(size_t(field.numBlocks(l)) * kWords, 0);
     touched_flag_[l].resize(field.numBlocks(l), 0);

@@ -126,7 +126,7 @@ class FieldGradient {
   int numLevels() const { return static_cast<int>(grad_.size()); }
 
  private:
-  std::vector<std::vector<float>> grad_;
+  std::vector<LargeVector<float>> grad_;
   std::vector<std::vector<uint64_t>> voxel_bits_;
   std::vector<std::vector<uint8_t>> touched_flag_;
   std::vector<std::vector<int>> touched_;

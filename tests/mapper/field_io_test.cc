@@ -2,7 +2,9 @@
 // exactly and resume training identically; keyframe versions replace or are ignored.
 #include "mapper/field_io.h"
 
+#include <algorithm>
 #include <cstdio>
+#include <cstring>
 #include <fstream>
 
 #include <gtest/gtest.h>
@@ -364,6 +366,71 @@ TEST(KeyframeStore, HigherVersionsReplaceLowerOnesAreIgnored) {
   EXPECT_EQ(mapper.keyframes().entry(mapper.keyframes().find(7)).T_world_cam.matrix(),
             newer.T_world_cam.matrix());
   EXPECT_EQ(mapper.keyframes().gaugeIndex(), mapper.keyframes().find(7));
+}
+
+TEST(KeyframeStore, AReSentImageKeepsItsExposureAnotherImageStartsOver) {
+  const SyntheticScene scene = tinyRoom();
+  KeyframeStore store;
+  Keyframe kf = keyframeOf(scene, 0, 3);
+  kf.version = 1;
+  store.insert(kf);
+  store.entry(0).exposure << 0.1, -0.1, 0.05, 0.01, 0.02, 0.03;
+  store.entry(0).exposure_steps = 40;
+  kf.version = 2;  // the same image with a refined pose
+  kf.T_world_cam = scene.cameraPose(1);
+  ASSERT_EQ(store.insert(kf), KeyframeStore::InsertResult::kReplaced);
+  EXPECT_DOUBLE_EQ(store.entry(0).exposure[0], 0.1);
+  EXPECT_EQ(store.entry(0).exposure_steps, 40);
+  EXPECT_EQ(store.entry(0).rays_trained, 0);
+  Keyframe other = keyframeOf(scene, 5, 3);  // same id, another image
+  other.version = 3;
+  ASSERT_EQ(store.insert(other), KeyframeStore::InsertResult::kReplaced);
+  EXPECT_EQ(store.entry(0).exposure, Vec6::Zero());
+  EXPECT_EQ(store.entry(0).exposure_steps, 0);
+}
+
+TEST(Mapper, AReSentKeyframeSeedsOnlyTheBlocksItsNewDepthAdds) {
+  const SyntheticScene scene = tinyRoom();
+  MapperParams params = smallParams();
+  params.exposure_init_stride = 0;  // no exposure fit: seeds compare bitwise
+  Mapper resent(params), added(params);
+  for (Mapper* m : {&resent, &added}) {
+    m->addKeyframe(keyframeOf(scene, 0, 0));
+    m->addKeyframe(keyframeOf(scene, 10, 1));
+  }
+  const Field before = resent.field();
+  const int fine = before.numLevels() - 1;
+  const int old_blocks = before.numBlocks(fine);
+  // Version 2 of keyframe 1: the bundle adjustment moved its surfaces 6 % further away.
+  Keyframe refined = keyframeOf(scene, 10, 1);
+  refined.version = 2;
+  refined.depth *= 1.06;
+  ASSERT_EQ(resent.addKeyframe(refined), KeyframeStore::InsertResult::kReplaced);
+  Keyframe as_new = refined;  // the same images as another keyframe: seeded everywhere
+  as_new.keyframe_id = 2;
+  ASSERT_EQ(added.addKeyframe(as_new), KeyframeStore::InsertResult::kAdded);
+  const Field& a = resent.field();
+  const Field& b = added.field();
+  ASSERT_EQ(a.numBlocks(fine), b.numBlocks(fine));
+  ASSERT_GT(a.numBlocks(fine), old_blocks);
+  const size_t block_floats = size_t(Field::kBlockVoxels) * a.channels();
+  auto same = [&](const Field& x, const Field& y, int block) {
+    return std::memcmp(x.blockData(fine, block), y.blockData(fine, block),
+                       block_floats * sizeof(float)) == 0;
+  };
+  int old_seeded_by_new_keyframe = 0, new_seeded = 0;
+  for (int blk = 0; blk < old_blocks; ++blk) {
+    EXPECT_TRUE(same(a, before, blk)) << "old block " << blk << " was seeded again";
+    old_seeded_by_new_keyframe += !same(b, before, blk);
+  }
+  for (int blk = old_blocks; blk < a.numBlocks(fine); ++blk) {
+    // The skipped pixels reach no new block: new blocks get exactly what a full seeding gives.
+    EXPECT_TRUE(same(a, b, blk)) << "new block " << blk;
+    const float* data = a.blockData(fine, blk);
+    new_seeded += std::any_of(data, data + block_floats, [](float v) { return v != 0.f; });
+  }
+  EXPECT_GT(old_seeded_by_new_keyframe, 0);  // what a re-sent keyframe saves
+  EXPECT_GT(new_seeded, 0);
 }
 
 TEST(KeyframeStore, RejectsMalformedKeyframesWithClearErrors) {
