@@ -102,7 +102,8 @@ Keyframe normalizeKeyframe(const Keyframe& kf) {
   return out;
 }
 
-KeyframeStore::InsertResult KeyframeStore::insert(const Keyframe& keyframe) {
+KeyframeStore::InsertResult KeyframeStore::insert(const Keyframe& keyframe, bool* resent) {
+  if (resent) *resent = false;
   const int existing = find(keyframe.keyframe_id);
   if (existing >= 0 && entries_[existing].keyframe.version >= keyframe.version)
     return InsertResult::kIgnored;
@@ -121,6 +122,7 @@ KeyframeStore::InsertResult KeyframeStore::insert(const Keyframe& keyframe) {
     // same image (a re-sent keyframe) keeps its exposure as trained.
     const KeyframeEntry& old = entries_[existing];
     if (old.keyframe.header.utime == keyframe.header.utime) {
+      if (resent) *resent = true;
       entry.exposure = old.exposure;
       entry.exposure_m = old.exposure_m;
       entry.exposure_v = old.exposure_v;

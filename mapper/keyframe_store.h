@@ -48,8 +48,8 @@ class KeyframeStore {
   /// negative depths become 0 (unknown), bad variances become infinite (no depth weight).
   /// Throws std::invalid_argument naming the keyframe and what is wrong. The images are
   /// deep-copied. A replacement of the same image (same header time) keeps its exposure; the
-  /// rest restarts.
-  InsertResult insert(const Keyframe& keyframe);
+  /// rest restarts. *resent (when given) says whether it was such a replacement.
+  InsertResult insert(const Keyframe& keyframe, bool* resent = nullptr);
 
   int size() const { return static_cast<int>(entries_.size()); }
   KeyframeEntry& entry(int i) { return entries_[i]; }

@@ -319,10 +319,8 @@ void Mapper::seedSurface(const KeyframeEntry& entry, int first_new_block, bool n
 
 KeyframeStore::InsertResult Mapper::addKeyframe(const Keyframe& keyframe) {
   if (retired(keyframe.keyframe_id)) return KeyframeStore::InsertResult::kIgnored;
-  const int existing = keyframes_.find(keyframe.keyframe_id);
-  const bool same_image =
-      existing >= 0 && keyframes_.entry(existing).keyframe.header.utime == keyframe.header.utime;
-  KeyframeStore::InsertResult result = keyframes_.insert(keyframe);
+  bool resent = false;
+  KeyframeStore::InsertResult result = keyframes_.insert(keyframe, &resent);
   if (result != KeyframeStore::InsertResult::kIgnored && params_.fill_depth_holes) {
     // Holes get a guessed depth with infinite variance (the store keeps the normalised images).
     Keyframe& kf = keyframes_.entry(keyframes_.find(keyframe.keyframe_id)).keyframe;
@@ -341,7 +339,6 @@ KeyframeStore::InsertResult Mapper::addKeyframe(const Keyframe& keyframe) {
     KeyframeEntry& entry = keyframes_.entry(keyframes_.find(keyframe.keyframe_id));
     // A re-sent keyframe (the same image, refined pose and depth) keeps its exposure and what
     // its earlier version seeded: only blocks new to this version are seeded.
-    const bool resent = same_image && result == KeyframeStore::InsertResult::kReplaced;
     if (!resent) initExposure(&entry);  // before its own blocks and seeds change the field
     allocateFor(entry, resent);
   }
