@@ -47,7 +47,8 @@ class BinaryWriter {
     for (int i = 0; i < m.size(); ++i) put(m.data()[i]);
   }
   void header(const Header& h);
-  /// Size, model type, fx fy cx cy and distortion.
+  /// Size, model type, fx fy cx cy and distortion (not the rolling shutter readout: the files
+  /// that hold an input camera write it themselves).
   void camera(const CameraModel& c);
   /// Flushes, closes and renames PATH.tmp to PATH. Throws std::runtime_error (disk full, ...).
   void commit();

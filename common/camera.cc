@@ -114,6 +114,10 @@ void validateCamera(const CameraModel& cam) {
   if (!(std::isfinite(cam.cx) && std::isfinite(cam.cy))) {
     throw std::invalid_argument("camera: principal point is not finite");
   }
+  if (!(cam.readout_s >= 0 && cam.readout_s < 1)) {
+    throw std::invalid_argument("camera: rolling shutter readout " + std::to_string(cam.readout_s) +
+                                " s is not in [0, 1)");
+  }
   for (double k : cam.distortion) {
     if (!std::isfinite(k)) throw std::invalid_argument("camera: distortion coefficient not finite");
   }
@@ -157,26 +161,18 @@ Undistorter::Undistorter(const CameraModel& source, int target_width, int target
     target_ = scaleCamera(source, target_width, target_height);
     target_.type = CameraModel::Type::kPinhole;
     target_.distortion.clear();
+    target_.readout_s = 0;  // a rolling shutter is undone by the caller, if at all
     pure_resize_ = true;
     return;
   }
 
-  const cv::Size source_size(source.width, source.height);
   const cv::Size target_size(target_width, target_height);
-  const cv::Matx33d K = cameraMatrix(source);
-  const cv::Mat D(source.distortion, true);
-  cv::Matx33d K_new;
-  if (source.type == CameraModel::Type::kRadTan) {
-    // alpha = 0: only valid pixels in the output.
-    K_new = cv::getOptimalNewCameraMatrix(K, D, source_size, 0.0, target_size);
-    cv::initUndistortRectifyMap(K, D, cv::Matx33d::eye(), K_new, target_size, CV_32FC1, map_x_,
-                                map_y_);
-  } else {
-    K_new = innerPinholeForFisheye(source, target_size);
-    cv::fisheye::initUndistortRectifyMap(K, D, cv::Matx33d::eye(), K_new, target_size, CV_32FC1,
-                                         map_x_, map_y_);
-  }
-  cv::convertMaps(map_x_, map_y_, map_fixed_, map_interp_, CV_16SC2);
+  // RadTan: alpha = 0, only valid pixels in the output.
+  const cv::Matx33d K_new =
+      source.type == CameraModel::Type::kRadTan
+          ? cv::getOptimalNewCameraMatrix(cameraMatrix(source), cv::Mat(source.distortion, true),
+                                          cv::Size(source.width, source.height), 0.0, target_size)
+          : innerPinholeForFisheye(source, target_size);
   target_.width = target_width;
   target_.height = target_height;
   target_.type = CameraModel::Type::kPinhole;
@@ -185,6 +181,41 @@ Undistorter::Undistorter(const CameraModel& source, int target_width, int target
   target_.cx = K_new(0, 2);
   target_.cy = K_new(1, 2);
   target_.distortion.clear();
+  sourcePixels(0, &map_x_, &map_y_);
+  cv::convertMaps(map_x_, map_y_, map_fixed_, map_interp_, CV_16SC2);
+}
+
+void Undistorter::sourcePixels(int pad, cv::Mat* map_x, cv::Mat* map_y) const {
+  if (pad < 0) throw std::invalid_argument("Undistorter::sourcePixels: pad must be >= 0");
+  const cv::Size size(target_.width + 2 * pad, target_.height + 2 * pad);
+  if (pure_resize_) {
+    // The pixel-centre convention of scaleCamera and cv::resize.
+    const double sx = static_cast<double>(source_.width) / target_.width;
+    const double sy = static_cast<double>(source_.height) / target_.height;
+    map_x->create(size, CV_32FC1);
+    map_y->create(size, CV_32FC1);
+    for (int y = 0; y < size.height; ++y) {
+      float* mx = map_x->ptr<float>(y);
+      float* my = map_y->ptr<float>(y);
+      for (int x = 0; x < size.width; ++x) {
+        mx[x] = static_cast<float>((x - pad + 0.5) * sx - 0.5);
+        my[x] = static_cast<float>((y - pad + 0.5) * sy - 0.5);
+      }
+    }
+    return;
+  }
+  const cv::Matx33d K = cameraMatrix(source_);
+  const cv::Mat D(source_.distortion, true);
+  CameraModel padded = target_;
+  padded.cx += pad;
+  padded.cy += pad;
+  const cv::Matx33d K_padded = cameraMatrix(padded);
+  if (source_.type == CameraModel::Type::kRadTan) {
+    cv::initUndistortRectifyMap(K, D, cv::Matx33d::eye(), K_padded, size, CV_32FC1, *map_x, *map_y);
+  } else {
+    cv::fisheye::initUndistortRectifyMap(K, D, cv::Matx33d::eye(), K_padded, size, CV_32FC1, *map_x,
+                                         *map_y);
+  }
 }
 
 cv::Mat Undistorter::apply(const cv::Mat& image, int interpolation) const {

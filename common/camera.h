@@ -61,6 +61,11 @@ class Undistorter {
   /// std::invalid_argument if the image size is not the source camera's.
   cv::Mat apply(const cv::Mat& image, int interpolation = cv::INTER_LINEAR) const;
 
+  /// The source pixel (CV_32FC1 maps of x and y) of every target pixel and of `pad` more
+  /// pixels beyond each border of the target: entry (pad + v, pad + u) is target pixel (u, v).
+  /// Throws std::invalid_argument when pad < 0.
+  void sourcePixels(int pad, cv::Mat* map_x, cv::Mat* map_y) const;
+
   const CameraModel& source() const { return source_; }
   /// The pinhole camera of the output images.
   const CameraModel& target() const { return target_; }

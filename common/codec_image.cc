@@ -437,6 +437,7 @@ void cameraToLcm(const CameraModel& camera, camera_t* out) {
   out->cy = camera.cy;
   out->distortion = camera.distortion;
   out->num_distortion = static_cast<int32_t>(camera.distortion.size());
+  out->readout_s = camera.readout_s;
 }
 
 bool cameraFromLcm(const camera_t& in, const std::string& name, CameraModel* out,
@@ -453,6 +454,10 @@ bool cameraFromLcm(const camera_t& in, const std::string& name, CameraModel* out
   if (!std::isfinite(in.fx) || !std::isfinite(in.fy) || !std::isfinite(in.cx) ||
       !std::isfinite(in.cy)) {
     return fail(error, name + ": intrinsics are not finite");
+  }
+  if (!(in.readout_s >= 0 && in.readout_s < 1)) {
+    return fail(error, name + ": rolling shutter readout " + std::to_string(in.readout_s) +
+                           " s is not in [0, 1)");
   }
   if (in.num_distortion > kMaxDistortion) {
     return fail(error, name + ": " + std::to_string(in.num_distortion) +
@@ -471,6 +476,7 @@ bool cameraFromLcm(const camera_t& in, const std::string& name, CameraModel* out
   camera.cx = in.cx;
   camera.cy = in.cy;
   camera.distortion = in.distortion;
+  camera.readout_s = in.readout_s;
   // A camera with a size is one the receiver projects with: refuse here what
   // its Undistorter or tracker would throw on (focal lengths > 0, coefficient
   // counts of the model). Size 0x0 means "no camera".

@@ -199,6 +199,11 @@ CameraModel readCameraNode(const cv::FileNode& node, const std::string& path) {
     camera.type = CameraModel::Type::kRadTan;
     camera.distortion = coefficients;
   }
+  if (!node["readout_s"].empty()) {
+    camera.readout_s = readNumber(node, "readout_s", path);
+    if (!(camera.readout_s >= 0 && camera.readout_s < 1))
+      throw std::runtime_error(path + ": readout_s (rolling shutter, s) must be in [0, 1)");
+  }
   return camera;
 }
 

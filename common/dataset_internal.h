@@ -46,8 +46,8 @@ std::vector<std::pair<int64_t, std::string>> listNumberedFiles(const std::string
 cv::FileStorage openYaml(const std::string& path);
 
 /// Pinhole or RadTan camera from a cv::FileStorage node with keys width height
-/// fx fy cx cy and optional k1 k2 p1 p2 k3. Throws naming `path` on missing or
-/// implausible values.
+/// fx fy cx cy and optional k1 k2 p1 p2 k3 and readout_s (rolling shutter). Throws
+/// naming `path` on missing or implausible values.
 CameraModel readCameraNode(const cv::FileNode& node, const std::string& path);
 
 /// Image loaders: false plus *error (naming the file and the problem) when the

@@ -74,6 +74,11 @@ std::vector<TumEntry> readAssociations(const std::string& path) {
   return entries;
 }
 
+// The Kinect colour camera of freiburg1 and 2 has a rolling shutter. Its readout is not
+// published; 25 ms is where the tracker's orientation error on fr1/rpy is lowest, between
+// 20 and 30 ms (docs/tracker.md, "Rolling shutter").
+constexpr double kKinectReadoutS = 0.025;
+
 // Intrinsics are not part of the TUM files: camera.yaml, else the calibration
 // the TUM site gives for the sensor named in the folder name (freiburg1/2/3).
 CameraModel tumCamera(const std::string& path) {
@@ -92,10 +97,12 @@ CameraModel tumCamera(const std::string& path) {
     camera.type = CameraModel::Type::kRadTan;
     camera.fx = 517.3, camera.fy = 516.5, camera.cx = 318.6, camera.cy = 255.3;
     camera.distortion = {0.2624, -0.9531, -0.0054, 0.0026, 1.1633};
+    camera.readout_s = kKinectReadoutS;
   } else if (sensor == '2') {
     camera.type = CameraModel::Type::kRadTan;
     camera.fx = 520.9, camera.fy = 521.0, camera.cx = 325.1, camera.cy = 249.7;
     camera.distortion = {0.2312, -0.7849, -0.0033, -0.0001, 0.9172};
+    camera.readout_s = kKinectReadoutS;
   } else if (sensor == '3') {
     // fr3 images are already undistorted.
     camera.fx = 535.4, camera.fy = 539.2, camera.cx = 320.1, camera.cy = 247.6;

@@ -380,6 +380,7 @@ void validate(const SyntheticConfig& c) {
   require(c.depth_noise_rel >= 0 && c.depth_noise_rel < 1, "depth_noise_rel must be in [0, 1)");
   require(c.threads >= 1 && c.threads <= 256, "threads must be in 1..256");
   require(c.fps == 0 || (c.fps >= 1 && c.fps <= 1000), "fps must be 0 (the scene's) or 1..1000");
+  require(c.readout_s >= 0 && c.readout_s < 1, "readout_s must be in [0, 1) s");
 }
 
 }  // namespace
@@ -409,6 +410,7 @@ CameraModel SyntheticScene::camera() const {
   cam.fx = cam.fy = 0.8 * config_.width;
   cam.cx = 0.5 * (config_.width - 1);
   cam.cy = 0.5 * (config_.height - 1);
+  cam.readout_s = config_.readout_s;
   return cam;
 }
 
@@ -459,8 +461,37 @@ RenderedView SyntheticScene::render(const SE3& T_world_cam, const CameraModel& c
   return Renderer(*scene_, T_world_cam, camera, t_objects).render(config_.threads);
 }
 
+RenderedView SyntheticScene::renderFrame(int frame, const SE3& T_cam_sensor) const {
+  if (config_.readout_s <= 0) return render(cameraPose(frame) * T_cam_sensor, camera(), frame);
+  // Each row on its own: a one-row camera whose principal point puts the row at y = 0, posed
+  // (with the objects) at the row's exposure time.
+  const CameraModel cam = camera();
+  RenderedView view;
+  view.color.create(cam.height, cam.width, CV_8UC3);
+  view.depth.create(cam.height, cam.width, CV_32FC1);
+  view.instance.create(cam.height, cam.width, CV_16UC1);
+  view.class_id.create(cam.height, cam.width, CV_16UC1);
+  parallelRows(cam.height, config_.threads, [&](int y) {
+    const double dt =
+        (static_cast<double>(y) / std::max(1, cam.height - 1) - 0.5) * config_.readout_s;
+    const double t = timestamp(frame) + dt;
+    const double t_objects = config_.freeze_objects ? objectTime(frame) : t;
+    CameraModel row = cam;
+    row.height = 1;
+    row.cy = cam.cy - y;
+    const RenderedView line =
+        Renderer(*scene_, synth::cameraPose(*scene_, t) * T_cam_sensor, row, t_objects).render(1);
+    line.color.copyTo(view.color.row(y));
+    line.depth.copyTo(view.depth.row(y));
+    line.instance.copyTo(view.instance.row(y));
+    line.class_id.copyTo(view.class_id.row(y));
+  });
+  return view;
+}
+
 Frame SyntheticScene::frame(int i) const {
-  RenderedView left = render(cameraPose(i), camera(), i);
+  const SE3 T_left_right(SO3(), Vec3(config_.baseline_m, 0, 0));
+  RenderedView left = renderFrame(i, SE3());
   Frame f;
   f.header.utime = std::llround(timestamp(i) * 1e6);
   f.header.seq = i;
@@ -472,7 +503,7 @@ Frame SyntheticScene::frame(int i) const {
   f.instance = left.instance;
   f.class_id = left.class_id;
   if (config_.stereo) {
-    f.right = render(rightCameraPose(i), camera(), i).color;
+    f.right = renderFrame(i, T_left_right).color;
     f.baseline_m = config_.baseline_m;
   }
   if (config_.image_noise_sigma > 0) {
@@ -577,6 +608,7 @@ void generateSyntheticDataset(const SyntheticConfig& config, const std::string& 
     fs << "width" << cam.width << "height" << cam.height << "fx" << cam.fx << "fy" << cam.fy << "cx"
        << cam.cx << "cy" << cam.cy << "baseline_m" << (config.stereo ? config.baseline_m : 0.0)
        << "depth_scale" << kDepthScale;
+    if (cam.readout_s > 0) fs << "readout_s" << cam.readout_s;
   }
   {
     cv::FileStorage fs = openYamlForWriting(path("classes.yaml"));
@@ -595,7 +627,8 @@ void generateSyntheticDataset(const SyntheticConfig& config, const std::string& 
        << "scene" << config.scene << "frames" << config.frames << "seed"
        << std::to_string(config.seed) << "fps" << scene.fps() << "image_noise_sigma"
        << config.image_noise_sigma << "depth_noise_rel" << config.depth_noise_rel
-       << "freeze_objects" << static_cast<int>(config.freeze_objects);
+       << "freeze_objects" << static_cast<int>(config.freeze_objects) << "readout_s"
+       << config.readout_s;
   }
 
   File times = openText(path("times.txt"));

@@ -53,6 +53,9 @@ struct SyntheticConfig {
   int threads = 1;                // render threads
   bool freeze_objects = false;    // moving objects stay at their last frame's pose (a reference)
   double fps = 0;                 // frame rate, Hz (0 = the scene's: 30 rooms, 10 streets)
+  /// Rolling shutter: row y is exposed at the frame's time + (y / (height - 1) - 0.5) readout_s,
+  /// with the camera and the objects where they are then (0: every row at the frame's time).
+  double readout_s = 0;
 };
 
 /// A rendered view. Images are width x height.
@@ -87,7 +90,7 @@ class SyntheticScene {
   /// Time (s) at which the moving objects are posed for a frame: its own, or with
   /// freeze_objects the last frame's.
   double objectTime(int frame) const;
-  CameraModel camera() const;  // pinhole, config size
+  CameraModel camera() const;  // pinhole, config size and readout
   double baseline() const { return config_.baseline_m; }
 
   /// T_world_cam of the (left) camera at a frame; frames past numFrames() continue the path.
@@ -104,11 +107,14 @@ class SyntheticScene {
   RenderedView render(const SE3& T_world_cam, const CameraModel& camera, int frame) const;
 
   /// The dataset frame: colour, right image (when stereo), depth, instance and class, with
-  /// the configured sensor noise (deterministic from seed and frame). Header utime from
-  /// timestamp(frame), sender "synthetic".
+  /// the configured sensor noise (deterministic from seed and frame) and rolling shutter.
+  /// Header utime from timestamp(frame), sender "synthetic".
   Frame frame(int frame) const;
 
  private:
+  // The frame's view of the camera T_cam_sensor from the left one, with the rolling shutter.
+  RenderedView renderFrame(int frame, const SE3& T_cam_sensor) const;
+
   SyntheticConfig config_;
   std::shared_ptr<const synth::SceneData> scene_;
 };

@@ -26,6 +26,9 @@ struct CameraModel {
   double fx = 0, fy = 0, cx = 0, cy = 0;  // pixels
   // RadTan: k1 k2 p1 p2 [k3]; Equidistant: k1 k2 k3 k4.
   std::vector<double> distortion;
+  // Rolling shutter: s from the exposure of the first row to that of the last (0: global
+  // shutter, every row at once).
+  double readout_s = 0;
 };
 
 /// How an image travels on the bus.

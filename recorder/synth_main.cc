@@ -23,6 +23,7 @@ const char* kUsage = R"(usage: radslam-synth --scene NAME --out DIR [options]
   --freeze-objects moving objects stay at their last frame's pose (the scene without motion;
                    objects ahead of the camera stay ahead)
   --fps F          frame rate, Hz (default: the scene's, 30 for rooms, 10 for streets)
+  --readout S      rolling shutter: s from the first row's exposure to the last's (default 0)
   --threads T      render threads (default 1)
 )";
 
@@ -50,6 +51,7 @@ int run(int argc, char** argv) {
   config.stereo = !cli.getBool("no-stereo", false);
   config.freeze_objects = cli.getBool("freeze-objects", false);
   config.fps = cli.getDouble("fps", 0);
+  config.readout_s = cli.getDouble("readout", 0);
   config.threads = cli.getInt("threads", config.threads);
   cli.finish();
   if (out_dir.empty()) throw std::runtime_error("--out is required\n" + cli.usage());

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 #include <opencv2/imgproc.hpp>
 
@@ -57,9 +58,14 @@ cv::Size workingSize(int input_width, int input_height, int working_width, int c
   return {w, h};
 }
 
-ImagePreparer::ImagePreparer(const CameraModel& input, int working_width, int cell)
-    : input_(input) {
+ImagePreparer::ImagePreparer(const CameraModel& input, int working_width, int cell,
+                             double readout_s)
+    : input_(input), readout_s_(readout_s) {
   validateCamera(input);
+  if (!(readout_s >= 0 && readout_s < 1)) {
+    throw std::invalid_argument("rolling shutter readout must be in [0, 1) s, got " +
+                                std::to_string(readout_s));
+  }
   const cv::Size work = workingSize(input.width, input.height, working_width, cell);
   // Halve with INTER_AREA while the result stays at least the working size: the remap that
   // follows then downsamples by less than 2 and does not alias.
@@ -72,15 +78,76 @@ ImagePreparer::ImagePreparer(const CameraModel& input, int working_width, int ce
   distorted_ = isDistorted(input);
   undistorter_ = std::make_unique<Undistorter>(source, work.width, work.height);
   geometry_ = makeGridGeometry(undistorter_->target(), cell);
+  if (readout_s_ > 0) {
+    // A camera turning at 3 rad/s over half a 40 ms readout carries pixels about 0.06 f away.
+    source_pad_ = static_cast<int>(std::ceil(0.06 * std::max(geometry_.working.fx, 1.0)));
+    cv::Mat map_x, map_y;
+    undistorter_->sourcePixels(source_pad_, &map_x, &map_y);
+    cv::merge(std::vector<cv::Mat>{map_x, map_y}, padded_source_);
+    global_source_ = padded_source_(
+        cv::Rect(source_pad_, source_pad_, geometry_.working.width, geometry_.working.height));
+  }
+}
+
+cv::Vec2f ImagePreparer::paddedSource(double u, double v) const {
+  const double x = std::clamp(u + source_pad_, 0.0, padded_source_.cols - 1.001);
+  const double y = std::clamp(v + source_pad_, 0.0, padded_source_.rows - 1.001);
+  const int x0 = static_cast<int>(x);
+  const int y0 = static_cast<int>(y);
+  const float ax = static_cast<float>(x - x0);
+  const float ay = static_cast<float>(y - y0);
+  const cv::Vec2f* row0 = padded_source_.ptr<cv::Vec2f>(y0);
+  const cv::Vec2f* row1 = padded_source_.ptr<cv::Vec2f>(y0 + 1);
+  return (1 - ay) * ((1 - ax) * row0[x0] + ax * row0[x0 + 1]) +
+         ay * ((1 - ax) * row1[x0] + ax * row1[x0 + 1]);
+}
+
+cv::Mat ImagePreparer::rollingShutterMap(const Vec3& omega_cam) const {
+  if (readout_s_ <= 0 || omega_cam.isZero()) return cv::Mat();
+  const CameraModel& cam = geometry_.working;
+  const int cell = geometry_.cell;
+  // The displacement from the global-shutter source pixel varies slowly across the image: it
+  // is solved at the grid pixels' centres and interpolated (cv::resize's pixel-centre
+  // convention) to the working pixels.
+  cv::Mat shift(geometry_.gridSize(), CV_32FC2);
+  const double row_scale = 1.0 / std::max(1, input_.height - 1);
+  for (int j = 0; j < shift.rows; ++j) {
+    for (int i = 0; i < shift.cols; ++i) {
+      const double u = cell * i + (cell - 1) / 2.0;
+      const double v = cell * j + (cell - 1) / 2.0;
+      const Vec3 ray((u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, 1.0);
+      const cv::Vec2f global = paddedSource(u, v);
+      // The input row decides when the ray was seen, and the rotation since the middle row
+      // decides which row sees it: a fixed point, reached in a few steps (the rotation over a
+      // readout is small).
+      cv::Vec2f source = global;
+      for (int iteration = 0; iteration < 3; ++iteration) {
+        const double input_row = (source[1] + 0.5) * prescale_ - 0.5;
+        const double dt = (input_row * row_scale - 0.5) * readout_s_;
+        // The camera at time t is R(t_mid) exp(omega dt): the ray r of the middle row's
+        // camera is exp(-omega dt) r in the camera at t.
+        const Vec3 seen = SO3::exp(-dt * omega_cam) * ray;
+        if (!(seen.z() > 0)) break;
+        source = paddedSource(cam.fx * seen.x() / seen.z() + cam.cx,
+                              cam.fy * seen.y() / seen.z() + cam.cy);
+      }
+      shift.at<cv::Vec2f>(j, i) = source - global;
+    }
+  }
+  cv::Mat map;
+  cv::resize(shift, map, geometry_.workingSize(), 0, 0, cv::INTER_LINEAR);
+  map += global_source_;
+  return map;
 }
 
 bool ImagePreparer::matches(const CameraModel& c) const {
   return c.width == input_.width && c.height == input_.height && c.type == input_.type &&
          c.fx == input_.fx && c.fy == input_.fy && c.cx == input_.cx && c.cy == input_.cy &&
-         c.distortion == input_.distortion;
+         c.distortion == input_.distortion && c.readout_s == input_.readout_s;
 }
 
-cv::Mat ImagePreparer::resample(const cv::Mat& image, bool nearest) const {
+cv::Mat ImagePreparer::resample(const cv::Mat& image, bool nearest,
+                                const cv::Mat& source_map) const {
   cv::Mat src = image;
   if (prescale_ > 1) {
     cv::Mat reduced;
@@ -88,12 +155,19 @@ cv::Mat ImagePreparer::resample(const cv::Mat& image, bool nearest) const {
                nearest ? cv::INTER_NEAREST_EXACT : cv::INTER_AREA);
     src = reduced;
   }
+  if (!source_map.empty()) {
+    cv::Mat out;
+    cv::remap(src, out, source_map, cv::noArray(), nearest ? cv::INTER_NEAREST : cv::INTER_LINEAR,
+              cv::BORDER_REPLICATE);
+    return out;
+  }
   if (nearest) return undistorter_->apply(src, cv::INTER_NEAREST);
   // Without distortion apply() is a plain resize: INTER_AREA averages instead of aliasing.
   return undistorter_->apply(src, distorted_ ? cv::INTER_LINEAR : cv::INTER_AREA);
 }
 
-PreparedImage ImagePreparer::prepare(const Frame& frame, bool want_color) const {
+PreparedImage ImagePreparer::prepare(const Frame& frame, bool want_color,
+                                     const Vec3& omega_cam) const {
   validateFrame(frame);
   if (!matches(frame.camera)) {
     throw std::invalid_argument("frame camera " +
@@ -101,19 +175,23 @@ PreparedImage ImagePreparer::prepare(const Frame& frame, bool want_color) const 
                                 " differs from the camera this preparer was built for");
   }
   PreparedImage out;
-  out.grey = resample(toGrey(frame.color), false);
-  if (want_color) out.color = resample(frame.color, false);
-  if (!frame.right.empty()) out.right_grey = resample(toGrey(frame.right), false);
+  out.source_map = rollingShutterMap(omega_cam);
+  const cv::Mat& map = out.source_map;
+  out.grey = resample(toGrey(frame.color), false, map);
+  if (want_color) out.color = resample(frame.color, false, map);
+  if (!frame.right.empty()) out.right_grey = resample(toGrey(frame.right), false, map);
   if (!frame.depth.empty()) {
     // Nearest neighbour: averaging depths across an edge would invent surfaces.
-    out.depth = resample(frame.depth, true);
+    out.depth = resample(frame.depth, true, map);
   }
-  if (!frame.instance.empty()) out.instance = resample(frame.instance, true);
-  if (!frame.class_id.empty()) out.class_id = resample(frame.class_id, true);
+  if (!frame.instance.empty()) out.instance = resample(frame.instance, true, map);
+  if (!frame.class_id.empty()) out.class_id = resample(frame.class_id, true, map);
   return out;
 }
 
-cv::Mat ImagePreparer::prepareColor(const cv::Mat& color) const { return resample(color, false); }
+cv::Mat ImagePreparer::prepareColor(const cv::Mat& color, const PreparedImage& image) const {
+  return resample(color, false, image.source_map);
+}
 
 void validateFrame(const Frame& frame) {
   const CameraModel& cam = frame.camera;

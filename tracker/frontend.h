@@ -48,6 +48,9 @@ struct PreparedImage {
   cv::Mat depth;       // CV_32FC1 m, 0 = invalid, working size (nearest neighbour); RGB-D only
   cv::Mat instance;    // CV_16UC1 working size (nearest neighbour); when the frame has one
   cv::Mat class_id;    // CV_16UC1 working size (nearest neighbour); when the frame has one
+  // Rolling shutter only: the source pixel of every working pixel (CV_32FC2, in the input
+  // reduced by the preparer's prescale), which prepareColor() reuses for the same frame.
+  cv::Mat source_map;
 };
 
 /// Undistorts and resamples frames of one camera to the working resolution. Large downscales
@@ -55,23 +58,43 @@ struct PreparedImage {
 /// remap (or, for an undistorted camera, one INTER_AREA resize) reaches the working size.
 class ImagePreparer {
  public:
-  /// Throws std::invalid_argument on an invalid camera or a working size it cannot make.
-  ImagePreparer(const CameraModel& input, int working_width, int cell);
+  /// Throws std::invalid_argument on an invalid camera or a working size it cannot make, or
+  /// a negative readout.
+  ///
+  /// readout_s > 0 (usually input.readout_s): the camera has a rolling shutter that exposes the
+  /// input's rows one after another, the last row readout_s after the first. A camera that turns
+  /// meanwhile sees each row from another orientation, which bends and shears a global-shutter view
+  /// by up to degrees (TUM fr1/rpy turns at 58 deg/s median). prepare() then resamples every pixel
+  /// as the camera saw it when the middle row was exposed: rotation only (over a readout the camera
+  /// turns by up to degrees but moves by millimetres).
+  ImagePreparer(const CameraModel& input, int working_width, int cell, double readout_s = 0);
 
   /// True when frames of `camera` can go through this preparer (same size and intrinsics).
   bool matches(const CameraModel& camera) const;
   const CameraModel& input() const { return input_; }
+  double readout() const { return readout_s_; }  // s, 0: global shutter
   const GridGeometry& geometry() const { return geometry_; }
 
   /// Grey (always), colour (when want_color), right grey, depth and the instance and class
   /// masks (each when the frame has it). Throws std::invalid_argument naming what is wrong with the
   /// frame's images (empty, size differs from the camera, unsupported type).
-  PreparedImage prepare(const Frame& frame, bool want_color) const;
-  /// Colour of a frame already validated by prepare() (done only for keyframes).
-  cv::Mat prepareColor(const cv::Mat& color) const;
+  /// omega_cam: the camera's angular velocity during the frame (rad/s, camera frame); it is
+  /// used only with a rolling shutter.
+  PreparedImage prepare(const Frame& frame, bool want_color,
+                        const Vec3& omega_cam = Vec3::Zero()) const;
+  /// Colour of a frame already validated by prepare() (done only for keyframes), resampled as
+  /// that frame's `image` was.
+  cv::Mat prepareColor(const cv::Mat& color, const PreparedImage& image) const;
+
+  /// Rolling shutter: the source pixel (in the prescaled input) of every working pixel, as
+  /// prepare() uses it for a camera turning at omega_cam; empty for a global shutter or no
+  /// rotation.
+  cv::Mat rollingShutterMap(const Vec3& omega_cam) const;
 
  private:
-  cv::Mat resample(const cv::Mat& image, bool nearest) const;
+  cv::Mat resample(const cv::Mat& image, bool nearest, const cv::Mat& source_map) const;
+  // Source pixel at a working-image position (bilinear in the padded map, clamped to it).
+  cv::Vec2f paddedSource(double u, double v) const;
 
   CameraModel input_;
   int prescale_ = 1;  // input is first reduced by this factor (power of 2)
@@ -79,6 +102,10 @@ class ImagePreparer {
   bool distorted_ = false;
   std::unique_ptr<Undistorter> undistorter_;
   GridGeometry geometry_;
+  double readout_s_ = 0;
+  int source_pad_ = 0;     // working px the padded map reaches beyond each border
+  cv::Mat padded_source_;  // CV_32FC2 source pixels of the working image and a margin
+  cv::Mat global_source_;  // CV_32FC2 view of its working part
 };
 
 /// Throws std::invalid_argument naming what is wrong with a frame's content: empty colour,

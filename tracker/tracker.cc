@@ -121,7 +121,9 @@ std::unique_ptr<ImagePreparer> Tracker::Impl::makePreparer(const CameraModel& ca
           ? 0
           : static_cast<int>(std::lround(
                 std::sqrt(p.working_pixels * static_cast<double>(camera.width) / camera.height)));
-  return std::make_unique<ImagePreparer>(camera, width, p.grid_cell);
+  const double readout_s =
+      p.rolling_shutter_readout_s < 0 ? camera.readout_s : p.rolling_shutter_readout_s;
+  return std::make_unique<ImagePreparer>(camera, width, p.grid_cell, readout_s);
 }
 
 void Tracker::Impl::setUpCamera(std::unique_ptr<ImagePreparer> first_preparer) {
@@ -168,8 +170,7 @@ TrackerOutput Tracker::process(const Frame& frame) {
                                 std::to_string(c.width) + "x" + std::to_string(c.height) +
                                 " fx=" + std::to_string(c.fx) + "); one tracker, one camera");
   }
-  const PreparedImage image =
-      (first_preparer ? *first_preparer : *s.preparer).prepare(frame, false);
+  const PreparedImage image = s.prepareFrame(first_preparer ? *first_preparer : *s.preparer, frame);
   if (first_preparer) s.setUpCamera(std::move(first_preparer));
   if (mode_ == TrackerMode::kStereo && s.baseline_m == 0) s.baseline_m = frame.baseline_m;
   s.moving = s.objects ? s.objects->movingMask(image.instance, image.class_id) : cv::Mat();
@@ -270,13 +271,46 @@ SE3 Tracker::Impl::predictPose(int64_t utime) const {
   return T_last * SE3::exp(ratio * xi);
 }
 
+PreparedImage Tracker::Impl::prepareFrame(const ImagePreparer& preparer, const Frame& frame) {
+  if (preparer.readout() <= 0) return preparer.prepare(frame, false);
+  // A first image turned by the motion model's angular velocity; the rotation from the previous
+  // frame's image to it measures this frame interval's, which turns the image kept.
+  Vec3 omega = angularVelocity();
+  PreparedImage image = preparer.prepare(frame, false, omega);
+  const CameraModel& working = preparer.geometry().working;
+  ImagePyramid pyramid = coarsePyramid(image.grey, working, kRotationLevels[0], kRotationLevels[1]);
+  const double dt_s = 1e-6 * static_cast<double>(frame.header.utime - previous_frame_utime);
+  if (!previous_frame_pyramid.levels.empty() && dt_s > 0 && dt_s < kMaxRotationGapS) {
+    const RotationAlignment rotation =
+        alignRotation(previous_frame_pyramid, pyramid, SO3::exp(-dt_s * omega), rotation_options);
+    if (rotation.ok) {
+      // R_b_a = R_world_b^T R_world_a = Exp(-omega dt).
+      omega = -rotation.R_b_a.log() / dt_s;
+      image = preparer.prepare(frame, false, omega);
+      pyramid = coarsePyramid(image.grey, working, kRotationLevels[0], kRotationLevels[1]);
+    }
+  }
+  previous_frame_pyramid = std::move(pyramid);
+  previous_frame_utime = frame.header.utime;
+  return image;
+}
+
+Vec3 Tracker::Impl::angularVelocity() const {
+  if (frames.size() < 2 || frames.back().state == TrackingState::kLost) return Vec3::Zero();
+  const FrameRecord& last = frames.back();
+  const FrameRecord& before = frames[frames.size() - 2];
+  const double dt_s = 1e-6 * static_cast<double>(last.header.utime - before.header.utime);
+  if (!(dt_s > 0)) return Vec3::Zero();
+  return (framePose(before).so3().inverse() * framePose(last).so3()).log() / dt_s;
+}
+
 KeyframeData Tracker::Impl::newKeyframeData(const Frame& frame, const PreparedImage& image,
                                             const SE3& T_world_cam) {
   const GridGeometry& g = preparer->geometry();
   KeyframeData kf;
   kf.frame_index = frame.frame_index;
   kf.header = frame.header;
-  kf.color = preparer->prepareColor(frame.color);
+  kf.color = preparer->prepareColor(frame.color, image);
   kf.grey = image.grey;
   kf.gradients = imageGradients(image.grey);
   kf.structure = cellStructureTensor(kf.gradients, g.cell);

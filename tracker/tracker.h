@@ -55,7 +55,11 @@ struct TrackerParams {
   // multiple of grid_cell each way), so wide images (KITTI) keep as many BA grid rows as
   // their area allows. 384 x 288 for 4:3 input.
   int working_pixels = 110592;
-  int grid_cell = 8;                 // working px per BA grid px
+  int grid_cell = 8;  // working px per BA grid px
+  // Rolling shutter: s from the first input row's exposure to the last's; negative: the
+  // camera's own (CameraModel::readout_s), 0: global shutter. Frames are resampled as seen at
+  // their middle row (tracker/frontend.h ImagePreparer, tracker/rotation_alignment.h).
+  double rolling_shutter_readout_s = -1;
   std::string flow_preset = "fast";  // DIS preset: ultrafast | fast | medium
   int flow_finest_scale = 1;         // DIS finest pyramid level (2 biased the flow at 384 px width)
   int flow_variational_iterations = 0;

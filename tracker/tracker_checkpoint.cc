@@ -1,8 +1,9 @@
 // Tracker checkpoints: one little-endian binary file (common/binary_io.h).
 //   "RSTRKCK\0", u32 format version
 //   the options the state depends on (mode, working size, grid, window, objects), checked
-//   u8 has camera, then the input camera
+//   u8 has camera, then the input camera and its rolling shutter readout
 //   stereo baseline, flags, lost streak, statistics
+//   u32 levels of the previous frame's coarse images (rolling shutter), each image; its time
 //   u32 frames, each: header, index, reference keyframe, relative pose and covariance, state
 //   u32 pending frames, each: frame record and its correspondences
 //   the keyframe graph (KeyframeGraph::save), the object tracker and the motion segmenter
@@ -19,7 +20,7 @@ namespace radslam {
 namespace {
 
 constexpr char kMagic[8] = {'R', 'S', 'T', 'R', 'K', 'C', 'K', '\0'};
-constexpr uint32_t kFormat = 2;  // 2: object windows and planes
+constexpr uint32_t kFormat = 3;  // 2: object windows and planes; 3: rolling shutter
 
 /// What a checkpoint's state is only valid with.
 struct StateOptions {
@@ -102,12 +103,18 @@ void Tracker::saveCheckpoint(const std::string& path) const {
   w.put(kFormat);
   StateOptions(params_, mode_).write(&w);
   w.put<uint8_t>(s.preparer != nullptr);
-  if (s.preparer) w.camera(s.preparer->input());
+  if (s.preparer) {
+    w.camera(s.preparer->input());
+    w.put(s.preparer->input().readout_s);
+  }
   w.put(s.baseline_m);
   w.put<uint8_t>(s.ba_ran);
   w.put<uint8_t>(s.first_ba_done);
   w.put<int32_t>(s.lost_streak);
   w.put(s.stats);
+  w.put<uint32_t>(s.previous_frame_pyramid.levels.size());
+  for (const cv::Mat& level : s.previous_frame_pyramid.levels) w.mat(level);
+  w.put<int64_t>(s.previous_frame_utime);
   w.put<uint32_t>(s.frames.size());
   for (const FrameRecord& f : s.frames) {
     w.header(f.header);
@@ -149,7 +156,9 @@ void Tracker::loadCheckpoint(const std::string& path) {
   auto s = std::make_unique<Impl>(params_, mode_);
   if (r.get<uint8_t>()) {
     try {
-      s->setUpCamera(s->makePreparer(r.camera()));
+      CameraModel camera = r.camera();
+      camera.readout_s = r.get<double>();
+      s->setUpCamera(s->makePreparer(camera));
     } catch (const std::invalid_argument& e) {
       r.fail(std::string("camera: ") + e.what());
     }
@@ -159,6 +168,24 @@ void Tracker::loadCheckpoint(const std::string& path) {
   s->first_ba_done = r.get<uint8_t>() != 0;
   s->lost_streak = r.get<int32_t>();
   s->stats = r.get<TrackerStats>();
+  const size_t coarse_levels = r.count(8);
+  for (size_t i = 0; i < coarse_levels; ++i) s->previous_frame_pyramid.levels.push_back(r.mat());
+  s->previous_frame_utime = r.get<int64_t>();
+  if (coarse_levels > 0) {
+    // The cameras follow from the working camera; the images must fit them.
+    const CameraModel* working = s->preparer ? &s->preparer->geometry().working : nullptr;
+    if (!working) r.fail("coarse images without a camera");
+    const ImagePyramid expected =
+        coarsePyramid(cv::Mat(working->height, working->width, CV_8UC1, cv::Scalar(0)), *working,
+                      Impl::kRotationLevels[0], Impl::kRotationLevels[1]);
+    if (expected.levels.size() != coarse_levels) r.fail("wrong number of coarse images");
+    for (size_t i = 0; i < coarse_levels; ++i) {
+      const cv::Mat& level = s->previous_frame_pyramid.levels[i];
+      if (level.type() != CV_8UC1 || level.size() != expected.levels[i].size())
+        r.fail("coarse image " + std::to_string(i) + " does not fit the working camera");
+    }
+    s->previous_frame_pyramid.cameras = expected.cameras;
+  }
   s->frames.resize(r.count(64));
   for (FrameRecord& f : s->frames) {
     f.header = r.header();

@@ -10,6 +10,7 @@
 #include "tracker/motion_only.h"
 #include "tracker/motion_segmentation.h"
 #include "tracker/object_tracker.h"
+#include "tracker/rotation_alignment.h"
 #include "tracker/tracker.h"
 
 namespace radslam {
@@ -62,6 +63,10 @@ struct Tracker::Impl {
   KeyframeData newKeyframeData(const Frame& frame, const PreparedImage& image,
                                const SE3& T_world_cam);
   SE3 predictPose(int64_t utime) const;
+  /// The camera's angular velocity (rad/s, camera frame) by the motion model; zero without one.
+  Vec3 angularVelocity() const;
+  /// The frame at working resolution; with a rolling shutter, as seen at its middle row.
+  PreparedImage prepareFrame(const ImagePreparer& preparer, const Frame& frame);
   SE3 framePose(const FrameRecord& r) const {
     return graph.keyframe(r.ref_kf).ba.T_world_cam * r.T_kf_frame;
   }
@@ -152,6 +157,14 @@ struct Tracker::Impl {
   void realignFrames(const std::vector<int>* leaving);
   int lost_streak = 0;
   TrackerStats stats;
+
+  // Rolling shutter: the previous frame's image at the levels that measure the rotation from
+  // it (working / 4 and / 8: 96 x 72 and 48 x 36 px for 4:3 input), and its time.
+  static constexpr int kRotationLevels[2] = {2, 3};
+  static constexpr double kMaxRotationGapS = 0.2;  // a longer gap: the motion model alone
+  RotationAlignmentOptions rotation_options;
+  ImagePyramid previous_frame_pyramid;
+  int64_t previous_frame_utime = 0;  // us
 };
 
 }  // namespace radslam

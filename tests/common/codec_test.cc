@@ -288,6 +288,10 @@ TEST(Codec, EnumRangesChecked) {
   f.camera.type = static_cast<CameraModel::Type>(4);
   EXPECT_NE(decodeError<Frame>(encode(f)).find("camera: unknown camera model 4"),
             std::string::npos);
+  f.camera.type = CameraModel::Type::kPinhole;
+  f.camera.readout_s = -0.01;
+  EXPECT_NE(decodeError<Frame>(encode(f)).find("camera: rolling shutter readout"),
+            std::string::npos);
 }
 
 TEST(Codec, ImageValidation) {
@@ -348,6 +352,7 @@ TEST(Codec, FrameImagesMustAgreeInSize) {
   w.i8(0);
   for (int i = 0; i < 4; ++i) w.f64(100.0);
   w.i32(0);
+  w.f64(0.0);                                                           // readout_s
   w.image(4, 2, kGrey8, kRaw, 0.0f, 8, std::vector<uint8_t>(8, 1));     // color
   w.emptyImage();                                                       // right
   w.f64(0.0);                                                           // baseline

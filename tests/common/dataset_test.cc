@@ -123,6 +123,7 @@ TEST(RealData, TumFr1RpyHas170DepthFrames) {
     EXPECT_EQ(frame->camera.type, CameraModel::Type::kRadTan);
     EXPECT_DOUBLE_EQ(frame->camera.fx, 517.3);
     EXPECT_EQ(frame->camera.distortion.size(), 5u);
+    EXPECT_GT(frame->camera.readout_s, 0);  // the Kinect's rolling shutter
   }
 }
 
@@ -302,6 +303,11 @@ TEST_F(TumFolderTest, BadIndexAndCameraFilesThrow) {
   writeText("seq/camera.yaml", "%YAML:1.0\nwidth: 16\nheight: 12\nfx: 20.0\ncx: 8.0\ncy: 6.0\n");
   expectError([&] { openDataset("tum:" + dir_ + "/seq"); },
               {dir_ + "/seq/camera.yaml", "missing key 'fy'"});
+  writeText("seq/camera.yaml",
+            "%YAML:1.0\nwidth: 16\nheight: 12\nfx: 20.0\nfy: 20.0\ncx: 8.0\ncy: 6.0\n"
+            "readout_s: -0.02\n");
+  expectError([&] { openDataset("tum:" + dir_ + "/seq"); },
+              {dir_ + "/seq/camera.yaml", "readout_s (rolling shutter, s) must be in [0, 1)"});
   fs::remove(dir_ + "/seq/camera.yaml");
   expectError([&] { openDataset("tum:" + dir_ + "/seq"); }, {"freiburg1/2/3", "camera.yaml"});
 }

@@ -81,6 +81,7 @@ inline CameraModel sampleCamera(int w, int h) {
   c.cx = 318.6;
   c.cy = 255.3;
   c.distortion = {0.2624, -0.9531, -0.0054, 0.0026, 1.1633};
+  c.readout_s = 0.025;
   return c;
 }
 
@@ -262,6 +263,7 @@ inline void expectCameraEq(const CameraModel& a, const CameraModel& b) {
   EXPECT_EQ(a.cx, b.cx);
   EXPECT_EQ(a.cy, b.cy);
   EXPECT_EQ(a.distortion, b.distortion);
+  EXPECT_EQ(a.readout_s, b.readout_s);
 }
 
 /// Frames with lossless encodings (raw or PNG colour, float depth).

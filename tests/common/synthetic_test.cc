@@ -318,6 +318,36 @@ TEST(SyntheticTest, BadConfigurationsAreRejected) {
   EXPECT_THROW(scene.render(scene.cameraPose(0), distorted, 0), std::invalid_argument);
 }
 
+// Rolling shutter: row y is seen at the frame's time + (y / (h - 1) - 0.5) readout. With the
+// readout two frame periods long, the first row is the previous frame's and the last row the
+// next frame's, moving objects included.
+TEST(SyntheticScene, RollingShutterRowsAreSeenAtTheirOwnTime) {
+  SyntheticConfig c = smallConfig("car", 64, 48);
+  c.fps = 10;
+  c.stereo = true;
+  const SyntheticScene global = SyntheticScene::make(c);
+  c.readout_s = 0.2;
+  const SyntheticScene rolling = SyntheticScene::make(c);
+  EXPECT_DOUBLE_EQ(rolling.camera().readout_s, 0.2);
+  const Frame f = rolling.frame(5);
+  EXPECT_DOUBLE_EQ(f.camera.readout_s, 0.2);
+  const Frame before = global.frame(4), now = global.frame(5), after = global.frame(6);
+  auto rowDifference = [](const cv::Mat& a, const cv::Mat& b, int row) {
+    return cv::norm(a.row(row), b.row(row), cv::NORM_L1) / (a.cols * a.channels());
+  };
+  const int last = c.height - 1;
+  EXPECT_LT(rowDifference(f.color, before.color, 0), 0.5);
+  EXPECT_LT(rowDifference(f.color, after.color, last), 0.5);
+  EXPECT_LT(rowDifference(f.depth, after.depth, last), 1e-4);
+  EXPECT_LT(rowDifference(f.right, after.right, last), 0.5);
+  EXPECT_TRUE(identical(f.instance.row(0), before.instance.row(0)));
+  // The rows differ from the frame's own time.
+  EXPECT_GT(rowDifference(f.color, now.color, 0), 2.0);
+  EXPECT_GT(rowDifference(f.color, now.color, last), 2.0);
+  c.readout_s = 1.0;
+  EXPECT_THROW(SyntheticScene::make(c), std::invalid_argument);
+}
+
 class SyntheticFolderTest : public ::testing::Test {
  protected:
   void SetUp() override {
@@ -372,6 +402,7 @@ TEST_F(SyntheticFolderTest, WritesEveryFileOfTheFormat) {
   EXPECT_DOUBLE_EQ(static_cast<double>(camera["fx"]), 0.8 * 64);
   EXPECT_DOUBLE_EQ(static_cast<double>(camera["baseline_m"]), 0.1);
   EXPECT_DOUBLE_EQ(static_cast<double>(camera["depth_scale"]), 0.001);
+  EXPECT_TRUE(camera["readout_s"].empty()) << "a global shutter writes no readout";
   cv::FileStorage classes(dir_ + "/classes.yaml", cv::FileStorage::READ);
   int dynamic = 0;
   for (const cv::FileNode& n : classes["classes"]) dynamic += static_cast<int>(n["dynamic"]);

@@ -14,8 +14,9 @@
 namespace radslam {
 namespace {
 
-std::vector<Frame> sceneFrames(const std::string& scene_name, int frames) {
+std::vector<Frame> sceneFrames(const std::string& scene_name, int frames, double readout_s = 0) {
   SyntheticConfig config;
+  config.readout_s = readout_s;
   config.scene = scene_name;
   config.width = 320;
   config.height = 240;
@@ -76,11 +77,11 @@ void expectSameOutput(const TrackerOutput& a, const TrackerOutput& b, const std:
 /// Runs `frames` through one tracker; at frame `split` it saves a checkpoint that a second
 /// tracker loads, and both go on to the end and finish(): every output must be the same.
 void expectResumedRunIdentical(const std::string& mode, const std::string& scene, int frames,
-                               int split) {
+                               int split, double readout_s = 0) {
   TrackerParams params;
   params.mode = mode;
   params.window_size = 3;
-  const std::vector<Frame> sequence = sceneFrames(scene, frames);
+  const std::vector<Frame> sequence = sceneFrames(scene, frames, readout_s);
   Tracker original(params);
   for (int i = 0; i < split; ++i) original.process(sequence[i]);
   const std::string path = tempPath(mode + "_" + scene);
@@ -109,6 +110,11 @@ TEST(TrackerCheckpoint, RgbdRunWithSeveralObjectsResumesExactly) {
 
 TEST(TrackerCheckpoint, StereoRunWithACarResumesExactly) {
   expectResumedRunIdentical("stereo", "car", 30, 18);
+}
+
+// With a rolling shutter the checkpoint also holds the previous frame's coarse images.
+TEST(TrackerCheckpoint, RollingShutterRunResumesExactly) {
+  expectResumedRunIdentical("rgbd", "car", 30, 16, 0.03);
 }
 
 TEST(TrackerCheckpoint, BadFilesAreRefusedAndTheTrackerIsUnchanged) {
