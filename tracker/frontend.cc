@@ -110,7 +110,15 @@ cv::Mat ImagePreparer::rollingShutterMap(const Vec3& omega_cam) const {
   // is solved at the grid pixels' centres and interpolated (cv::resize's pixel-centre
   // convention) to the working pixels.
   cv::Mat shift(geometry_.gridSize(), CV_32FC2);
-  const double row_scale = 1.0 / std::max(1, input_.height - 1);
+  // Exp(-omega dt) of every input row, interpolated between rows below; the table reaches a
+  // quarter of the image beyond each border, where the padded map sends rays turned in.
+  const int rows = input_.height;
+  const int margin = rows / 4 + 1;
+  std::vector<Mat3> row_rotation(rows + 2 * margin);
+  for (int i = 0; i < static_cast<int>(row_rotation.size()); ++i) {
+    const double dt = (static_cast<double>(i - margin) / std::max(1, rows - 1) - 0.5) * readout_s_;
+    row_rotation[i] = SO3::exp(-dt * omega_cam).matrix();
+  }
   for (int j = 0; j < shift.rows; ++j) {
     for (int i = 0; i < shift.cols; ++i) {
       const double u = cell * i + (cell - 1) / 2.0;
@@ -122,11 +130,13 @@ cv::Mat ImagePreparer::rollingShutterMap(const Vec3& omega_cam) const {
       // readout is small).
       cv::Vec2f source = global;
       for (int iteration = 0; iteration < 3; ++iteration) {
-        const double input_row = (source[1] + 0.5) * prescale_ - 0.5;
-        const double dt = (input_row * row_scale - 0.5) * readout_s_;
-        // The camera at time t is R(t_mid) exp(omega dt): the ray r of the middle row's
-        // camera is exp(-omega dt) r in the camera at t.
-        const Vec3 seen = SO3::exp(-dt * omega_cam) * ray;
+        const double table_row = std::clamp((source[1] + 0.5) * prescale_ - 0.5 + margin, 0.0,
+                                            row_rotation.size() - 1.001);
+        const int row = static_cast<int>(table_row);
+        const double a = table_row - row;
+        // The camera at time t is R(t_mid) Exp(omega dt): the ray r of the middle row's
+        // camera is Exp(-omega dt) r in the camera at t.
+        const Vec3 seen = (1 - a) * (row_rotation[row] * ray) + a * (row_rotation[row + 1] * ray);
         if (!(seen.z() > 0)) break;
         source = paddedSource(cam.fx * seen.x() / seen.z() + cam.cx,
                               cam.fy * seen.y() / seen.z() + cam.cy);
@@ -187,6 +197,10 @@ PreparedImage ImagePreparer::prepare(const Frame& frame, bool want_color,
   if (!frame.instance.empty()) out.instance = resample(frame.instance, true, map);
   if (!frame.class_id.empty()) out.class_id = resample(frame.class_id, true, map);
   return out;
+}
+
+cv::Mat ImagePreparer::prepareGrey(const Frame& frame, const Vec3& omega_cam) const {
+  return resample(toGrey(frame.color), false, rollingShutterMap(omega_cam));
 }
 
 cv::Mat ImagePreparer::prepareColor(const cv::Mat& color, const PreparedImage& image) const {

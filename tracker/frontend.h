@@ -82,6 +82,8 @@ class ImagePreparer {
   /// used only with a rolling shutter.
   PreparedImage prepare(const Frame& frame, bool want_color,
                         const Vec3& omega_cam = Vec3::Zero()) const;
+  /// The grey image alone, as prepare() makes it (no validation: for a frame prepare() takes).
+  cv::Mat prepareGrey(const Frame& frame, const Vec3& omega_cam) const;
   /// Colour of a frame already validated by prepare() (done only for keyframes), resampled as
   /// that frame's `image` was.
   cv::Mat prepareColor(const cv::Mat& color, const PreparedImage& image) const;

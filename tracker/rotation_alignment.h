@@ -42,7 +42,7 @@ struct RotationAlignmentOptions {
   double min_gradient = 4.0;      // grey levels per px: flatter pixels carry no rotation
   double huber_scale = 10.0;      // grey levels
   double min_inlier_share = 0.3;  // of the usable pixels, inside b and within the kernel scale
-  double converged_rad = 1e-5;    // step norm
+  double converged_rad = 1e-4;    // step norm
 };
 
 struct RotationAlignment {

@@ -273,24 +273,22 @@ SE3 Tracker::Impl::predictPose(int64_t utime) const {
 
 PreparedImage Tracker::Impl::prepareFrame(const ImagePreparer& preparer, const Frame& frame) {
   if (preparer.readout() <= 0) return preparer.prepare(frame, false);
-  // A first image turned by the motion model's angular velocity; the rotation from the previous
-  // frame's image to it measures this frame interval's, which turns the image kept.
+  // A first grey image turned by the motion model's angular velocity; the rotation from the
+  // previous frame's image to it measures this frame interval's, which turns the image kept.
   Vec3 omega = angularVelocity();
-  PreparedImage image = preparer.prepare(frame, false, omega);
   const CameraModel& working = preparer.geometry().working;
-  ImagePyramid pyramid = coarsePyramid(image.grey, working, kRotationLevels[0], kRotationLevels[1]);
   const double dt_s = 1e-6 * static_cast<double>(frame.header.utime - previous_frame_utime);
   if (!previous_frame_pyramid.levels.empty() && dt_s > 0 && dt_s < kMaxRotationGapS) {
+    const ImagePyramid first = coarsePyramid(preparer.prepareGrey(frame, omega), working,
+                                             kRotationLevels[0], kRotationLevels[1]);
     const RotationAlignment rotation =
-        alignRotation(previous_frame_pyramid, pyramid, SO3::exp(-dt_s * omega), rotation_options);
-    if (rotation.ok) {
-      // R_b_a = R_world_b^T R_world_a = Exp(-omega dt).
-      omega = -rotation.R_b_a.log() / dt_s;
-      image = preparer.prepare(frame, false, omega);
-      pyramid = coarsePyramid(image.grey, working, kRotationLevels[0], kRotationLevels[1]);
-    }
+        alignRotation(previous_frame_pyramid, first, SO3::exp(-dt_s * omega), rotation_options);
+    // R_b_a = R_world_b^T R_world_a = Exp(-omega dt).
+    if (rotation.ok) omega = -rotation.R_b_a.log() / dt_s;
   }
-  previous_frame_pyramid = std::move(pyramid);
+  PreparedImage image = preparer.prepare(frame, false, omega);
+  previous_frame_pyramid =
+      coarsePyramid(image.grey, working, kRotationLevels[0], kRotationLevels[1]);
   previous_frame_utime = frame.header.utime;
   return image;
 }
