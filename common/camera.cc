@@ -161,10 +161,22 @@ Undistorter::Undistorter(const CameraModel& source, int target_width, int target
     target_ = scaleCamera(source, target_width, target_height);
     target_.type = CameraModel::Type::kPinhole;
     target_.distortion.clear();
-    target_.readout_s = 0;  // a rolling shutter is undone by the caller, if at all
+    target_.readout_s = 0;  // a rolling shutter is undone by rollingShutterMap, if at all
     pure_resize_ = true;
-    return;
+  } else {
+    makeDistortedMaps(target_width, target_height);
   }
+  if (source.readout_s > 0) {
+    // A camera turning at 3 rad/s over half a 40 ms readout carries rays about 0.06 f.
+    source_pad_ = static_cast<int>(std::ceil(0.06 * std::max(target_.fx, 1.0)));
+    cv::Mat map_x, map_y;
+    sourcePixels(source_pad_, &map_x, &map_y);
+    cv::merge(std::vector<cv::Mat>{map_x, map_y}, padded_source_);
+  }
+}
+
+void Undistorter::makeDistortedMaps(int target_width, int target_height) {
+  const CameraModel& source = source_;
 
   const cv::Size target_size(target_width, target_height);
   // RadTan: alpha = 0, only valid pixels in the output.
@@ -183,6 +195,100 @@ Undistorter::Undistorter(const CameraModel& source, int target_width, int target
   target_.distortion.clear();
   sourcePixels(0, &map_x_, &map_y_);
   cv::convertMaps(map_x_, map_y_, map_fixed_, map_interp_, CV_16SC2);
+}
+
+cv::Vec2f Undistorter::paddedSource(double u, double v) const {
+  const double x = std::clamp(u + source_pad_, 0.0, padded_source_.cols - 1.001);
+  const double y = std::clamp(v + source_pad_, 0.0, padded_source_.rows - 1.001);
+  const int x0 = static_cast<int>(x);
+  const int y0 = static_cast<int>(y);
+  const float ax = static_cast<float>(x - x0);
+  const float ay = static_cast<float>(y - y0);
+  const cv::Vec2f* row0 = padded_source_.ptr<cv::Vec2f>(y0);
+  const cv::Vec2f* row1 = padded_source_.ptr<cv::Vec2f>(y0 + 1);
+  return (1 - ay) * ((1 - ax) * row0[x0] + ax * row0[x0 + 1]) +
+         ay * ((1 - ax) * row1[x0] + ax * row1[x0 + 1]);
+}
+
+cv::Mat Undistorter::rollingShutterMap(const Vec3& omega_cam, int step) const {
+  if (source_.readout_s <= 0 || omega_cam.isZero()) return cv::Mat();
+  if (step < 1) throw std::invalid_argument("Undistorter::rollingShutterMap: step must be >= 1");
+  const CameraModel& cam = target_;
+  // Exp(-omega dt) of every source row, interpolated between rows below; the table reaches a
+  // quarter of the image beyond each border, where the padded map sends rays turned in.
+  const int rows = source_.height;
+  const int margin = rows / 4 + 1;
+  std::vector<Mat3> row_rotation(rows + 2 * margin);
+  for (int i = 0; i < static_cast<int>(row_rotation.size()); ++i) {
+    const double dt =
+        (static_cast<double>(i - margin) / std::max(1, rows - 1) - 0.5) * source_.readout_s;
+    row_rotation[i] = SO3::exp(-dt * omega_cam).matrix();
+  }
+  // The displacement from the global-shutter source pixel varies slowly across the image: it
+  // is solved at the centres of step x step blocks and interpolated (cv::resize's pixel-centre
+  // convention).
+  const cv::Size coarse((cam.width + step - 1) / step, (cam.height + step - 1) / step);
+  cv::Mat shift(coarse, CV_32FC2);
+  for (int j = 0; j < coarse.height; ++j) {
+    for (int i = 0; i < coarse.width; ++i) {
+      const double u = step * i + (step - 1) / 2.0;
+      const double v = step * j + (step - 1) / 2.0;
+      const Vec3 ray((u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, 1.0);
+      const cv::Vec2f global_shutter = paddedSource(u, v);
+      // The source row decides when the ray was seen, and the rotation since the middle row
+      // decides which row sees it: a fixed point, reached in a few steps (the rotation over a
+      // readout is small).
+      cv::Vec2f source = global_shutter;
+      for (int iteration = 0; iteration < 3; ++iteration) {
+        const double table_row =
+            std::clamp(source[1] + static_cast<double>(margin), 0.0, row_rotation.size() - 1.001);
+        const int row = static_cast<int>(table_row);
+        const double a = table_row - row;
+        const Vec3 seen = (1 - a) * (row_rotation[row] * ray) + a * (row_rotation[row + 1] * ray);
+        if (!(seen.z() > 0)) break;
+        source = paddedSource(cam.fx * seen.x() / seen.z() + cam.cx,
+                              cam.fy * seen.y() / seen.z() + cam.cy);
+      }
+      shift.at<cv::Vec2f>(j, i) = source - global_shutter;
+    }
+  }
+  cv::Mat map;
+  cv::resize(shift, map, cv::Size(cam.width, cam.height), 0, 0, cv::INTER_LINEAR);
+  map += padded_source_(cv::Rect(source_pad_, source_pad_, cam.width, cam.height));
+  return map;
+}
+
+cv::Mat Undistorter::apply(const cv::Mat& image, int interpolation,
+                           const cv::Mat& source_map) const {
+  if (source_map.empty()) return apply(image, interpolation);
+  if (image.cols != source_.width || image.rows != source_.height ||
+      source_map.type() != CV_32FC2 || source_map.cols != target_.width ||
+      source_map.rows != target_.height) {
+    throw std::invalid_argument("Undistorter::apply: image " + sizeString(image.cols, image.rows) +
+                                " or map does not fit the camera " +
+                                sizeString(source_.width, source_.height));
+  }
+  cv::Mat out;
+  const bool nearest =
+      interpolation == cv::INTER_NEAREST || interpolation == cv::INTER_NEAREST_EXACT;
+  cv::remap(image, out, source_map, cv::noArray(), nearest ? cv::INTER_NEAREST : cv::INTER_LINEAR,
+            cv::BORDER_REPLICATE);
+  return out;
+}
+
+cv::Mat Undistorter::exposureTimes() const {
+  if (source_.readout_s <= 0) return cv::Mat();
+  const cv::Mat source =
+      padded_source_(cv::Rect(source_pad_, source_pad_, target_.width, target_.height));
+  cv::Mat times(target_.height, target_.width, CV_32FC1);
+  const double scale = source_.readout_s / std::max(1, source_.height - 1);
+  for (int v = 0; v < times.rows; ++v) {
+    const cv::Vec2f* s = source.ptr<cv::Vec2f>(v);
+    float* t = times.ptr<float>(v);
+    for (int u = 0; u < times.cols; ++u)
+      t[u] = static_cast<float>(s[u][1] * scale - 0.5 * source_.readout_s);
+  }
+  return times;
 }
 
 void Undistorter::sourcePixels(int pad, cv::Mat* map_x, cv::Mat* map_y) const {

@@ -66,6 +66,24 @@ class Undistorter {
   /// Throws std::invalid_argument when pad < 0.
   void sourcePixels(int pad, cv::Mat* map_x, cv::Mat* map_y) const;
 
+  // Rolling shutter (source readout_s > 0): source row y is exposed (y / (H - 1) - 0.5)
+  // readout_s after the middle row. A camera turning meanwhile sees each row from another
+  // orientation; rotation only (over a readout a camera turns by degrees but moves by
+  // millimetres).
+
+  /// The source pixel (CV_32FC2) of every target pixel, as the camera saw the pixel's ray
+  /// when the middle row was exposed, turning at omega_cam (rad/s, camera frame): the ray r
+  /// of the middle row's camera is Exp(-omega_cam dt) r in the camera of a row exposed dt
+  /// later. Solved every `step` target pixels (at the centres of step x step blocks) and
+  /// interpolated. Empty for a global shutter or no rotation.
+  cv::Mat rollingShutterMap(const Vec3& omega_cam, int step) const;
+  /// Resamples `image` through a map of rollingShutterMap (apply() when it is empty).
+  cv::Mat apply(const cv::Mat& image, int interpolation, const cv::Mat& source_map) const;
+  /// When each target pixel was exposed: s after the middle row (CV_32FC1, the source row of
+  /// its pixel); empty for a global shutter. A view rendered with each pixel's ray turned by
+  /// Exp(omega dt) is what the rolling shutter saw.
+  cv::Mat exposureTimes() const;
+
   const CameraModel& source() const { return source_; }
   /// The pinhole camera of the output images.
   const CameraModel& target() const { return target_; }
@@ -76,6 +94,12 @@ class Undistorter {
   bool pure_resize_ = false;
   cv::Mat map_x_, map_y_;           // CV_32FC1 source pixel per target pixel (nearest)
   cv::Mat map_fixed_, map_interp_;  // fixed-point version (linear, cubic: faster)
+  // Rolling shutter: source pixels of the target and a margin of source_pad_ px (CV_32FC2).
+  int source_pad_ = 0;
+  cv::Mat padded_source_;
+  void makeDistortedMaps(int target_width, int target_height);
+  // Source pixel at a target position (bilinear in the padded map, clamped to it).
+  cv::Vec2f paddedSource(double u, double v) const;
 };
 
 }  // namespace radslam

@@ -7,6 +7,11 @@
 // the keyframes around them), depth L1 against the sensor depth, training rays per
 // CPU second, the training time to come within 0.5 dB of the final PSNR, peak memory. Prints a
 // report and one tab-separated RESULT line (scripts/bench mapper builds its table from them).
+//
+// A rolling-shutter camera (TUM's Kinect) is modelled as the tracker does (docs/tracker.md,
+// "Rolling shutter"): keyframe images are resampled as seen at their middle row, with the
+// ground truth's angular velocity, and every evaluation renders each pixel's ray turned to
+// the time its row was exposed, against the input image as it is.
 #include <time.h>
 
 #include <algorithm>
@@ -60,8 +65,12 @@ struct EvalFrame {
   size_t index = 0;
   int64_t utime = 0;
   SE3 T_world_cam;  // ground truth
-  cv::Mat color;    // BGR
+  cv::Mat color;    // BGR, as the camera saw it
   cv::Mat depth;    // m, 0 = none
+  // Rolling shutter: the ground truth's angular velocity, and the images resampled as seen at
+  // the middle row (what the mapper trains on; color and depth for a global shutter).
+  RollingShutterView rolling_shutter;
+  cv::Mat training_color, training_depth;
 };
 
 // Where each sensor's images meet the ground-truth clock: s added to an image's own stamp to
@@ -80,6 +89,7 @@ class FrameSource {
     const std::optional<Frame> first = dataset.frame(0, &error);
     if (!first) throw std::runtime_error(error);
     undistorter_ = std::make_unique<Undistorter>(first->camera, width, height);
+    exposure_s_ = undistorter_->exposureTimes();
   }
   const CameraModel& camera() const { return undistorter_->target(); }
   std::optional<EvalFrame> load(size_t i) const {
@@ -99,6 +109,21 @@ class FrameSource {
     cv::Mat color = f->color;
     if (color.type() == CV_8UC1) cv::cvtColor(color, color, cv::COLOR_GRAY2BGR);
     e.color = undistorter_->apply(color);
+    cv::Mat rolling_shutter_map;
+    if (!exposure_s_.empty()) {
+      // Angular velocity by central differences of the ground truth over 30 ms.
+      constexpr double kHalfSpanS = 0.015;
+      const std::optional<SE3> a =
+          poseAt(dataset_.groundTruth(), t_colour + sync_.colour_s - kHalfSpanS);
+      const std::optional<SE3> b =
+          poseAt(dataset_.groundTruth(), t_colour + sync_.colour_s + kHalfSpanS);
+      if (a && b) {
+        e.rolling_shutter.omega_cam = (a->so3().inverse() * b->so3()).log() / (2 * kHalfSpanS);
+        e.rolling_shutter.exposure_s = exposure_s_;
+        rolling_shutter_map = undistorter_->rollingShutterMap(e.rolling_shutter.omega_cam, 4);
+      }
+    }
+    e.training_color = undistorter_->apply(color, cv::INTER_LINEAR, rolling_shutter_map);
     if (!f->depth.empty()) {
       e.depth = undistorter_->apply(f->depth, cv::INTER_NEAREST);
       // Depth seen from where the camera was at another time: turned to the colour image's pose
@@ -107,6 +132,15 @@ class FrameSource {
       const std::optional<SE3> at_depth = poseAt(dataset_.groundTruth(), t_depth);
       if (t_depth != t_colour + sync_.colour_s && at_depth)
         e.depth = rotateDepth(e.depth, camera(), (gt->so3().inverse() * at_depth->so3()).matrix());
+      e.training_depth = e.depth;
+      if (!rolling_shutter_map.empty()) {
+        // The depth turned to the colour time, seen as by the colour image's middle row: the
+        // same resampling, applied to the input depth turned the same way.
+        e.training_depth = undistorter_->apply(f->depth, cv::INTER_NEAREST, rolling_shutter_map);
+        if (t_depth != t_colour + sync_.colour_s && at_depth)
+          e.training_depth = rotateDepth(e.training_depth, camera(),
+                                         (gt->so3().inverse() * at_depth->so3()).matrix());
+      }
     }
     return e;
   }
@@ -115,6 +149,7 @@ class FrameSource {
   const DatasetReader& dataset_;
   SensorSync sync_;
   std::unique_ptr<Undistorter> undistorter_;
+  cv::Mat exposure_s_;  // rolling shutter: each pixel's exposure after the middle row, s
 };
 
 // One line per reference-depth bin: share of the pixels, L1 and mean signed error.
@@ -174,7 +209,7 @@ double meanPsnr(const Mapper& mapper, const std::vector<EvalFrame>& frames,
                 const std::vector<Vec6>* exposures = nullptr) {
   double sum = 0;
   for (size_t i = 0; i < frames.size(); ++i) {
-    RenderImages r = mapper.render(poses[i], camera);
+    RenderImages r = mapper.render(poses[i], camera, 0, frames[i].rolling_shutter);
     if (exposures) applyExposure((*exposures)[i], &r.color);
     sum += psnr(frames[i].color, r.color);
     if (depth && !frames[i].depth.empty()) *depth += depthError(r.depth, frames[i].depth);
@@ -252,8 +287,8 @@ int run(int argc, char** argv) {
       if (!f || f->depth.empty()) continue;
       kf_index.push_back(i);
       kf_pose.push_back(f->T_world_cam);
-      kf_depth.push_back(f->depth);
-      kf_var.push_back(sensorDepthVariance(f->depth, edge_kf_px));
+      kf_depth.push_back(f->training_depth);
+      kf_var.push_back(sensorDepthVariance(f->training_depth, edge_kf_px));
     }
   } else {
     TrackerRun tracked = readTrackerRun(source.substr(8));
@@ -287,7 +322,7 @@ int run(int argc, char** argv) {
       if (!f || f->depth.empty()) continue;
       for (int y = 0; y < size.height; y += 4)
         for (int x = 0; x < size.width; x += 4) {
-          const float a = f->depth.at<float>(y, x), b = kf.depth.at<float>(y, x);
+          const float a = f->training_depth.at<float>(y, x), b = kf.depth.at<float>(y, x);
           if (a > 0 && b > 0 && std::isfinite(b)) ratios.push_back(a / b);
         }
     }
@@ -329,7 +364,7 @@ int run(int argc, char** argv) {
     kf.frame_index = static_cast<int64_t>(kf_index[k]);
     kf.T_world_cam = kf_pose[k];
     kf.camera = frames->camera();
-    kf.color = f->color;
+    kf.color = f->training_color;
     kf.depth = kf_depth[k];
     kf.depth_var = kf_var[k];
     mapper.addKeyframe(kf);

@@ -512,7 +512,8 @@ MarchParams Mapper::marchParams() const {
   return mp;
 }
 
-RenderImages Mapper::render(const SE3& T_world_cam, const CameraModel& camera, int threads) const {
+RenderImages Mapper::render(const SE3& T_world_cam, const CameraModel& camera, int threads,
+                            const RollingShutterView& rolling_shutter) const {
   if (camera.width <= 0 || camera.height <= 0 || !(camera.fx > 0) || !(camera.fy > 0))
     throw std::invalid_argument("render: camera needs a positive size and focal lengths");
   if (!field_.initialized()) {
@@ -525,7 +526,7 @@ RenderImages Mapper::render(const SE3& T_world_cam, const CameraModel& camera, i
     return out;
   }
   return renderer_.render(field_, T_world_cam, camera, marchParams(),
-                          threads > 0 ? threads : params_.render_threads);
+                          threads > 0 ? threads : params_.render_threads, rolling_shutter);
 }
 
 }  // namespace radslam

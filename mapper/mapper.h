@@ -101,9 +101,10 @@ class Mapper {
   /// initialized; the sender is invalid after reset().
   SnapshotSender makeSnapshotSender(int64_t snapshot_id, int max_blocks);
 
-  /// Renders any pinhole view (deterministic given the field).
-  /// threads: 0 = params().render_threads.
-  RenderImages render(const SE3& T_world_cam, const CameraModel& camera, int threads = 0) const;
+  /// Renders any pinhole view (deterministic given the field), through a rolling shutter when
+  /// one is given. threads: 0 = params().render_threads.
+  RenderImages render(const SE3& T_world_cam, const CameraModel& camera, int threads = 0,
+                      const RollingShutterView& rolling_shutter = {}) const;
   MarchParams marchParams() const;
 
   /// Checkpoint: field, optimiser state, keyframe poses and statistics, trainer counters and,

@@ -349,16 +349,22 @@ RayOutput VolumeRenderer::march(const Field& field, const Ray& ray,
 
 RenderImages VolumeRenderer::render(const Field& field, const SE3& T_world_cam,
                                     const CameraModel& camera, const MarchParams& params,
-                                    int threads) const {
-  return renderPinhole(T_world_cam, camera, threads,
-                       [&](const Ray& ray, int, int) { return march(field, ray, params); });
+                                    int threads, const RollingShutterView& rolling_shutter) const {
+  return renderPinhole(
+      T_world_cam, camera, threads,
+      [&](const Ray& ray, int, int) { return march(field, ray, params); }, rolling_shutter);
 }
 
 RenderImages renderPinhole(const SE3& T_world_cam, const CameraModel& camera, int threads,
-                           const std::function<RayOutput(const Ray&, int u, int v)>& march_ray) {
+                           const std::function<RayOutput(const Ray&, int u, int v)>& march_ray,
+                           const RollingShutterView& rolling_shutter) {
   if (camera.width <= 0 || camera.height <= 0 || !(camera.fx > 0) || !(camera.fy > 0))
     throw std::invalid_argument("render: camera needs positive size and focal lengths, got " +
                                 std::to_string(camera.width) + "x" + std::to_string(camera.height));
+  const cv::Mat& exposure = rolling_shutter.exposure_s;
+  if (!exposure.empty() && (exposure.type() != CV_32FC1 || exposure.cols != camera.width ||
+                            exposure.rows != camera.height))
+    throw std::invalid_argument("render: exposure times must be CV_32FC1 of the camera's size");
   RenderImages out;
   out.color.create(camera.height, camera.width, CV_32FC3);
   out.depth.create(camera.height, camera.width, CV_32FC1);
@@ -380,8 +386,9 @@ RenderImages renderPinhole(const SE3& T_world_cam, const CameraModel& camera, in
           float* sigma = out.sigma.ptr<float>(v);
           float* weight = out.weight.ptr<float>(v);
           for (int u = u0; u < u1; ++u) {
-            const Eigen::Vector3d cam_dir((u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy,
-                                          1);
+            Eigen::Vector3d cam_dir((u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, 1);
+            if (!exposure.empty())
+              cam_dir = SO3::exp(rolling_shutter.omega_cam * exposure.at<float>(v, u)) * cam_dir;
             const RayOutput r = march_ray(makeRay(T_world_cam, cam_dir), u, v);
             color[u] = cv::Vec3f(r.color[0], r.color[1], r.color[2]);
             depth[u] = r.depth;

@@ -49,6 +49,15 @@ struct Ray {
 /// The ray of camera direction cam_dir = (x, y, 1) of a camera at T_world_cam.
 Ray makeRay(const SE3& T_world_cam, const Eigen::Vector3d& cam_dir);
 
+/// A view through a rolling shutter: pixel (u, v) was exposed exposure_s(v, u) after the
+/// pose's time, by a camera turning at omega_cam meanwhile, so its ray is
+/// Exp(omega_cam exposure_s) K^-1 (u, v, 1) in the pose's camera (rotation only). Empty
+/// exposure times: a global shutter.
+struct RollingShutterView {
+  Vec3 omega_cam = Vec3::Zero();  // rad/s, camera frame
+  cv::Mat exposure_s;             // CV_32FC1 of the camera's size (Undistorter::exposureTimes)
+};
+
 struct RayOutput {
   float color[3] = {0, 0, 0};  // RGB, [0, 1]
   float depth = 0;             // D*, m (not normalised by the weight sum)
@@ -217,7 +226,8 @@ class VolumeRenderer {
   RayOutput march(const Field& field, const Ray& ray, const MarchParams& params) const;
   /// Renders a pinhole view (distortion ignored) with `threads` threads; deterministic.
   RenderImages render(const Field& field, const SE3& T_world_cam, const CameraModel& camera,
-                      const MarchParams& params, int threads = 1) const;
+                      const MarchParams& params, int threads = 1,
+                      const RollingShutterView& rolling_shutter = {}) const;
 
  private:
   Eigen::Vector3f background_;
@@ -226,9 +236,10 @@ class VolumeRenderer {
 /// Renders a pinhole view (distortion ignored) ray by ray, in square tiles on `threads`
 /// threads; march_ray(ray, u, v) gives the output of pixel (u, v). Deterministic: pixels are
 /// independent. Throws std::invalid_argument on a camera without positive size and focal
-/// lengths.
+/// lengths, or exposure times of another size.
 RenderImages renderPinhole(const SE3& T_world_cam, const CameraModel& camera, int threads,
-                           const std::function<RayOutput(const Ray&, int u, int v)>& march_ray);
+                           const std::function<RayOutput(const Ray&, int u, int v)>& march_ray,
+                           const RollingShutterView& rolling_shutter = {});
 
 /// Entry and exit of a ray in the box [lo, hi] (t may be negative); false when it misses.
 bool intersectBox(const Ray& ray, const Eigen::Vector3f& lo, const Eigen::Vector3f& hi,

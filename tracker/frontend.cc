@@ -60,7 +60,7 @@ cv::Size workingSize(int input_width, int input_height, int working_width, int c
 
 ImagePreparer::ImagePreparer(const CameraModel& input, int working_width, int cell,
                              double readout_s)
-    : input_(input), readout_s_(readout_s) {
+    : input_(input) {
   validateCamera(input);
   if (!(readout_s >= 0 && readout_s < 1)) {
     throw std::invalid_argument("rolling shutter readout must be in [0, 1) s, got " +
@@ -76,78 +76,13 @@ ImagePreparer::ImagePreparer(const CameraModel& input, int working_width, int ce
   }
   prescaled_size_ = cv::Size(source.width, source.height);
   distorted_ = isDistorted(input);
+  source.readout_s = readout_s;
   undistorter_ = std::make_unique<Undistorter>(source, work.width, work.height);
   geometry_ = makeGridGeometry(undistorter_->target(), cell);
-  if (readout_s_ > 0) {
-    // A camera turning at 3 rad/s over half a 40 ms readout carries pixels about 0.06 f away.
-    source_pad_ = static_cast<int>(std::ceil(0.06 * std::max(geometry_.working.fx, 1.0)));
-    cv::Mat map_x, map_y;
-    undistorter_->sourcePixels(source_pad_, &map_x, &map_y);
-    cv::merge(std::vector<cv::Mat>{map_x, map_y}, padded_source_);
-    global_source_ = padded_source_(
-        cv::Rect(source_pad_, source_pad_, geometry_.working.width, geometry_.working.height));
-  }
-}
-
-cv::Vec2f ImagePreparer::paddedSource(double u, double v) const {
-  const double x = std::clamp(u + source_pad_, 0.0, padded_source_.cols - 1.001);
-  const double y = std::clamp(v + source_pad_, 0.0, padded_source_.rows - 1.001);
-  const int x0 = static_cast<int>(x);
-  const int y0 = static_cast<int>(y);
-  const float ax = static_cast<float>(x - x0);
-  const float ay = static_cast<float>(y - y0);
-  const cv::Vec2f* row0 = padded_source_.ptr<cv::Vec2f>(y0);
-  const cv::Vec2f* row1 = padded_source_.ptr<cv::Vec2f>(y0 + 1);
-  return (1 - ay) * ((1 - ax) * row0[x0] + ax * row0[x0 + 1]) +
-         ay * ((1 - ax) * row1[x0] + ax * row1[x0 + 1]);
 }
 
 cv::Mat ImagePreparer::rollingShutterMap(const Vec3& omega_cam) const {
-  if (readout_s_ <= 0 || omega_cam.isZero()) return cv::Mat();
-  const CameraModel& cam = geometry_.working;
-  const int cell = geometry_.cell;
-  // The displacement from the global-shutter source pixel varies slowly across the image: it
-  // is solved at the grid pixels' centres and interpolated (cv::resize's pixel-centre
-  // convention) to the working pixels.
-  cv::Mat shift(geometry_.gridSize(), CV_32FC2);
-  // Exp(-omega dt) of every input row, interpolated between rows below; the table reaches a
-  // quarter of the image beyond each border, where the padded map sends rays turned in.
-  const int rows = input_.height;
-  const int margin = rows / 4 + 1;
-  std::vector<Mat3> row_rotation(rows + 2 * margin);
-  for (int i = 0; i < static_cast<int>(row_rotation.size()); ++i) {
-    const double dt = (static_cast<double>(i - margin) / std::max(1, rows - 1) - 0.5) * readout_s_;
-    row_rotation[i] = SO3::exp(-dt * omega_cam).matrix();
-  }
-  for (int j = 0; j < shift.rows; ++j) {
-    for (int i = 0; i < shift.cols; ++i) {
-      const double u = cell * i + (cell - 1) / 2.0;
-      const double v = cell * j + (cell - 1) / 2.0;
-      const Vec3 ray((u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, 1.0);
-      const cv::Vec2f global = paddedSource(u, v);
-      // The input row decides when the ray was seen, and the rotation since the middle row
-      // decides which row sees it: a fixed point, reached in a few steps (the rotation over a
-      // readout is small).
-      cv::Vec2f source = global;
-      for (int iteration = 0; iteration < 3; ++iteration) {
-        const double table_row = std::clamp((source[1] + 0.5) * prescale_ - 0.5 + margin, 0.0,
-                                            row_rotation.size() - 1.001);
-        const int row = static_cast<int>(table_row);
-        const double a = table_row - row;
-        // The camera at time t is R(t_mid) Exp(omega dt): the ray r of the middle row's
-        // camera is Exp(-omega dt) r in the camera at t.
-        const Vec3 seen = (1 - a) * (row_rotation[row] * ray) + a * (row_rotation[row + 1] * ray);
-        if (!(seen.z() > 0)) break;
-        source = paddedSource(cam.fx * seen.x() / seen.z() + cam.cx,
-                              cam.fy * seen.y() / seen.z() + cam.cy);
-      }
-      shift.at<cv::Vec2f>(j, i) = source - global;
-    }
-  }
-  cv::Mat map;
-  cv::resize(shift, map, geometry_.workingSize(), 0, 0, cv::INTER_LINEAR);
-  map += global_source_;
-  return map;
+  return undistorter_->rollingShutterMap(omega_cam, geometry_.cell);
 }
 
 bool ImagePreparer::matches(const CameraModel& c) const {
@@ -166,10 +101,7 @@ cv::Mat ImagePreparer::resample(const cv::Mat& image, bool nearest,
     src = reduced;
   }
   if (!source_map.empty()) {
-    cv::Mat out;
-    cv::remap(src, out, source_map, cv::noArray(), nearest ? cv::INTER_NEAREST : cv::INTER_LINEAR,
-              cv::BORDER_REPLICATE);
-    return out;
+    return undistorter_->apply(src, nearest ? cv::INTER_NEAREST : cv::INTER_LINEAR, source_map);
   }
   if (nearest) return undistorter_->apply(src, cv::INTER_NEAREST);
   // Without distortion apply() is a plain resize: INTER_AREA averages instead of aliasing.

@@ -72,7 +72,7 @@ class ImagePreparer {
   /// True when frames of `camera` can go through this preparer (same size and intrinsics).
   bool matches(const CameraModel& camera) const;
   const CameraModel& input() const { return input_; }
-  double readout() const { return readout_s_; }  // s, 0: global shutter
+  double readout() const { return undistorter_->source().readout_s; }  // s, 0: global shutter
   const GridGeometry& geometry() const { return geometry_; }
 
   /// Grey (always), colour (when want_color), right grey, depth and the instance and class
@@ -95,8 +95,6 @@ class ImagePreparer {
 
  private:
   cv::Mat resample(const cv::Mat& image, bool nearest, const cv::Mat& source_map) const;
-  // Source pixel at a working-image position (bilinear in the padded map, clamped to it).
-  cv::Vec2f paddedSource(double u, double v) const;
 
   CameraModel input_;
   int prescale_ = 1;  // input is first reduced by this factor (power of 2)
@@ -104,10 +102,6 @@ class ImagePreparer {
   bool distorted_ = false;
   std::unique_ptr<Undistorter> undistorter_;
   GridGeometry geometry_;
-  double readout_s_ = 0;
-  int source_pad_ = 0;     // working px the padded map reaches beyond each border
-  cv::Mat padded_source_;  // CV_32FC2 source pixels of the working image and a margin
-  cv::Mat global_source_;  // CV_32FC2 view of its working part
 };
 
 /// Throws std::invalid_argument naming what is wrong with a frame's content: empty colour,

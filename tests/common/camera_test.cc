@@ -145,6 +145,11 @@ TEST(Camera, ValidateRejectsBadModels) {
   bad.distortion = {0.1, 0, 0, 0};
   EXPECT_THROW(validateCamera(bad), std::invalid_argument);
   bad = pinhole();
+  bad.readout_s = -0.01;
+  EXPECT_THROW(validateCamera(bad), std::invalid_argument);
+  bad.readout_s = 1.0;
+  EXPECT_THROW(validateCamera(bad), std::invalid_argument);
+  bad = pinhole();
   bad.height = -1;
   EXPECT_THROW(Undistorter(bad, 10, 10), std::invalid_argument);
   EXPECT_THROW(Undistorter(pinhole(), 0, 10), std::invalid_argument);
@@ -295,6 +300,40 @@ TEST(Undistorter, NearestKeepsLabelsAndDepthsUnmixed) {
 
 // A tilted plane n . X = 2 m seen by the depth camera, turned by a small rotation: the result
 // is the same plane seen by the turned camera, (R n) . X = 2 m.
+// Rolling shutter: each target pixel's exposure time follows its source row (the middle row
+// at 0); a global shutter has none. The map of a turning camera is tested with the tracker's
+// image preparation (tests/tracker/rolling_shutter_test.cc).
+TEST(Undistorter, ExposureTimesFollowTheSourceRows) {
+  CameraModel cam = pinhole();
+  EXPECT_TRUE(Undistorter(cam, 613, 185).exposureTimes().empty());
+  EXPECT_TRUE(Undistorter(cam, 613, 185).rollingShutterMap(Vec3(0, 1, 0), 8).empty());
+  cam.readout_s = 0.03;
+  const Undistorter halved(cam, 613, 185);
+  const cv::Mat times = halved.exposureTimes();
+  ASSERT_EQ(times.type(), CV_32FC1);
+  ASSERT_EQ(times.size(), cv::Size(613, 185));
+  for (int v : {0, 92, 184}) {
+    const double source_row = (v + 0.5) * 2 - 0.5;  // scaleCamera's pixel centres
+    EXPECT_NEAR(times.at<float>(v, 300), (source_row / (cam.height - 1) - 0.5) * 0.03, 1e-6);
+  }
+  EXPECT_TRUE(halved.rollingShutterMap(Vec3::Zero(), 8).empty());
+  const cv::Mat map = halved.rollingShutterMap(Vec3(0.1, 2.0, -0.3), 8);
+  ASSERT_EQ(map.size(), cv::Size(613, 185));  // not a multiple of the step
+  EXPECT_THROW(halved.apply(cv::Mat(370, 1226, CV_8UC1), cv::INTER_LINEAR, map.colRange(0, 600)),
+               std::invalid_argument);
+  EXPECT_THROW(halved.rollingShutterMap(Vec3(0, 1, 0), 0), std::invalid_argument);
+  // With a turning camera the top and bottom rows move in opposite directions; the middle row
+  // stays.
+  cv::Mat global_x, global_y;
+  halved.sourcePixels(0, &global_x, &global_y);
+  const float top = map.at<cv::Vec2f>(0, 300)[0] - global_x.at<float>(0, 300);
+  const float middle = map.at<cv::Vec2f>(92, 300)[0] - global_x.at<float>(92, 300);
+  const float bottom = map.at<cv::Vec2f>(184, 300)[0] - global_x.at<float>(184, 300);
+  EXPECT_GT(std::abs(top), 5);
+  EXPECT_LT(top * bottom, 0);
+  EXPECT_LT(std::abs(middle), 0.1 * std::abs(top));
+}
+
 TEST(RotateDepth, ATurnedPlaneIsThePlaneSeenByTheTurnedCamera) {
   const CameraModel cam = pinhole();
   const Vec3 n_depth(0.2, 0.1, 1.0);

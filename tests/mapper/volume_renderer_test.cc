@@ -520,5 +520,41 @@ TEST(VolumeRenderer, MarchEqualsThePerSampleReferenceBitwise) {
   EXPECT_GT(stops, 300);
 }
 
+// A rolling-shutter view turns each pixel's camera ray by the camera's rotation until the
+// pixel's exposure; without exposure times the rays are the pinhole's.
+TEST(RenderPinhole, RollingShutterTurnsEachPixelsRay) {
+  CameraModel cam;
+  cam.width = 12;
+  cam.height = 9;
+  cam.fx = cam.fy = 10;
+  cam.cx = 5.5;
+  cam.cy = 4;
+  const SE3 T_world_cam(SO3::exp(Vec3(0.1, -0.2, 0.3)), Vec3(1, 2, 3));
+  RollingShutterView view;
+  view.omega_cam = Vec3(0.5, -2.0, 0.8);
+  view.exposure_s = cv::Mat(cam.height, cam.width, CV_32FC1);
+  for (int v = 0; v < cam.height; ++v) view.exposure_s.row(v).setTo(0.004 * (v - 4));  // s
+  for (const bool rolling : {false, true}) {
+    const RenderImages image = renderPinhole(
+        T_world_cam, cam, 2,
+        [&](const Ray& ray, int u, int v) {
+          Eigen::Vector3d expected((u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, 1);
+          if (rolling) expected = SO3::exp(view.omega_cam * (0.004 * (v - 4))) * expected;
+          const Ray reference = makeRay(T_world_cam, expected);
+          RayOutput out;
+          out.depth = (ray.dir - reference.dir).norm() + (ray.origin - reference.origin).norm();
+          return out;
+        },
+        rolling ? view : RollingShutterView());
+    double worst = 0;
+    cv::minMaxLoc(image.depth, nullptr, &worst);
+    EXPECT_LT(worst, 1e-6) << (rolling ? "rolling" : "global");
+  }
+  view.exposure_s = cv::Mat(3, 3, CV_32FC1, cv::Scalar(0));
+  EXPECT_THROW(renderPinhole(
+                   T_world_cam, cam, 1, [](const Ray&, int, int) { return RayOutput(); }, view),
+               std::invalid_argument);
+}
+
 }  // namespace
 }  // namespace radslam
