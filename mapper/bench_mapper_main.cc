@@ -125,22 +125,20 @@ class FrameSource {
     }
     e.training_color = undistorter_->apply(color, cv::INTER_LINEAR, rolling_shutter_map);
     if (!f->depth.empty()) {
-      e.depth = undistorter_->apply(f->depth, cv::INTER_NEAREST);
       // Depth seen from where the camera was at another time: turned to the colour image's pose
       // by the ground truth's rotation in between.
       const double t_depth = t_colour + f->depth_time_offset_s + sync_.depth_s;
       const std::optional<SE3> at_depth = poseAt(dataset_.groundTruth(), t_depth);
-      if (t_depth != t_colour + sync_.colour_s && at_depth)
-        e.depth = rotateDepth(e.depth, camera(), (gt->so3().inverse() * at_depth->so3()).matrix());
-      e.training_depth = e.depth;
-      if (!rolling_shutter_map.empty()) {
-        // The depth turned to the colour time, seen as by the colour image's middle row: the
-        // same resampling, applied to the input depth turned the same way.
-        e.training_depth = undistorter_->apply(f->depth, cv::INTER_NEAREST, rolling_shutter_map);
-        if (t_depth != t_colour + sync_.colour_s && at_depth)
-          e.training_depth = rotateDepth(e.training_depth, camera(),
-                                         (gt->so3().inverse() * at_depth->so3()).matrix());
-      }
+      auto toColourTime = [&](const cv::Mat& depth) {
+        if (t_depth == t_colour + sync_.colour_s || !at_depth) return depth;
+        return rotateDepth(depth, camera(), (gt->so3().inverse() * at_depth->so3()).matrix());
+      };
+      e.depth = toColourTime(undistorter_->apply(f->depth, cv::INTER_NEAREST));
+      // Training: as seen by the colour image's middle row, through the same resampling.
+      e.training_depth =
+          rolling_shutter_map.empty()
+              ? e.depth
+              : toColourTime(undistorter_->apply(f->depth, cv::INTER_NEAREST, rolling_shutter_map));
     }
     return e;
   }

@@ -9,6 +9,7 @@
 #include <utility>
 
 #include "common/bus.h"
+#include "common/camera.h"
 #include "common/cli.h"
 #include "common/control.h"
 #include "common/dataset.h"
@@ -31,7 +32,8 @@ const char* kUsage = R"(usage: radslam-play --dataset KIND:PATH [options]
   --start N --end N --stride N
   --loops N          play the range N times, every other one backwards (indices and times
                      go on; long-run tests)
-  --camera-config F  intrinsics of camera:N (YAML: width height fx fy cx cy)
+  --camera-config F  intrinsics of camera:N (YAML: width height fx fy cx cy, optional
+                     distortion and readout_s, the rolling shutter's readout)
   --log-channels RE  log: channels to replay (default the input channels)
   --wait-for P,Q     before playing, wait (up to 30 s) for a STATUS from each process
 )";
@@ -69,10 +71,16 @@ CameraModel loadCamera(const std::string& path) {
   reader.get("cx", &camera.cx);
   reader.get("cy", &camera.cy);
   reader.get("distortion", &camera.distortion);
+  reader.get("readout_s", &camera.readout_s);  // rolling shutter, s (0: global shutter)
   reader.finish();
   if (camera.width <= 0 || camera.fx <= 0)
     throw std::runtime_error(path + ": camera section needs width, height, fx, fy, cx, cy");
   if (!camera.distortion.empty()) camera.type = CameraModel::Type::kRadTan;
+  try {
+    validateCamera(camera);
+  } catch (const std::invalid_argument& e) {
+    throw std::runtime_error(path + ": " + e.what());
+  }
   return camera;
 }
 

@@ -155,7 +155,8 @@ TEST(ImagePreparer, RollingShutterMapFollowsTheRowTimes) {
   EXPECT_GT(largest_shift_px, 8.0);  // input px: the correction is not negligible
 }
 
-std::vector<Frame> rollingShutterRoom(int frames, double readout_s) {
+// The synthetic room at 320 x 240, monocular, through a rolling shutter.
+SyntheticScene fastRoom(int frames, double readout_s) {
   SyntheticConfig config;
   config.scene = "room";
   config.width = 320;
@@ -164,10 +165,7 @@ std::vector<Frame> rollingShutterRoom(int frames, double readout_s) {
   config.stereo = false;
   config.readout_s = readout_s;
   config.fps = 15;  // the room's orbit, twice as fast: about 20 deg/s
-  const SyntheticScene scene = SyntheticScene::make(config);
-  std::vector<Frame> out;
-  for (int i = 0; i < frames; ++i) out.push_back(scene.frame(i));
-  return out;
+  return SyntheticScene::make(config);
 }
 
 // A rolling-shutter frame resampled at the camera's angular velocity matches the global-shutter
@@ -175,17 +173,8 @@ std::vector<Frame> rollingShutterRoom(int frames, double readout_s) {
 // the readout, about a pixel for the nearest surfaces, which the correction leaves.)
 TEST(ImagePreparer, UndoesTheRollingShutterOfASyntheticFrame) {
   constexpr double kReadoutS = 0.06;
-  SyntheticConfig config;
-  config.scene = "room";
-  config.width = 320;
-  config.height = 240;
-  config.frames = 40;
-  config.stereo = false;
-  config.fps = 15;
-  config.readout_s = kReadoutS;
-  const SyntheticScene rolling = SyntheticScene::make(config);
-  config.readout_s = 0;
-  const SyntheticScene global = SyntheticScene::make(config);
+  const SyntheticScene rolling = fastRoom(40, kReadoutS);
+  const SyntheticScene global = fastRoom(40, 0);
   constexpr int kFrame = 20;
   // The camera's angular velocity at the frame, by central differences of its path.
   const SE3 before = rolling.cameraPose(kFrame - 1), after = rolling.cameraPose(kFrame + 1);
@@ -233,14 +222,13 @@ double orientationErrorDeg(const std::vector<Frame>& frames, const std::vector<S
 TEST(Tracker, TracksARollingShutterSequenceBetterWithItsReadout) {
   constexpr int kFrames = 30;
   constexpr double kReadoutS = 0.06;
-  const std::vector<Frame> frames = rollingShutterRoom(kFrames, kReadoutS);
-  SyntheticConfig config;
-  config.scene = "room";
-  config.fps = 15;
-  config.frames = kFrames;
-  const SyntheticScene scene = SyntheticScene::make(config);
+  const SyntheticScene scene = fastRoom(kFrames, kReadoutS);
+  std::vector<Frame> frames;
   std::vector<SE3> truth;
-  for (int i = 0; i < kFrames; ++i) truth.push_back(scene.cameraPose(i));
+  for (int i = 0; i < kFrames; ++i) {
+    frames.push_back(scene.frame(i));
+    truth.push_back(scene.cameraPose(i));
+  }
   const double with_readout = orientationErrorDeg(frames, truth, -1);  // the camera's
   const double as_global = orientationErrorDeg(frames, truth, 0);
   std::printf("orientation error: %.3f deg with the readout, %.3f deg as a global shutter\n",
