@@ -177,7 +177,6 @@ Undistorter::Undistorter(const CameraModel& source, int target_width, int target
 
 void Undistorter::makeDistortedMaps(int target_width, int target_height) {
   const CameraModel& source = source_;
-
   const cv::Size target_size(target_width, target_height);
   // RadTan: alpha = 0, only valid pixels in the output.
   const cv::Matx33d K_new =

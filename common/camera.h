@@ -89,6 +89,10 @@ class Undistorter {
   const CameraModel& target() const { return target_; }
 
  private:
+  void makeDistortedMaps(int target_width, int target_height);
+  // Source pixel at a target position (bilinear in the padded map, clamped to it).
+  cv::Vec2f paddedSource(double u, double v) const;
+
   CameraModel source_;
   CameraModel target_;
   bool pure_resize_ = false;
@@ -97,9 +101,6 @@ class Undistorter {
   // Rolling shutter: source pixels of the target and a margin of source_pad_ px (CV_32FC2).
   int source_pad_ = 0;
   cv::Mat padded_source_;
-  void makeDistortedMaps(int target_width, int target_height);
-  // Source pixel at a target position (bilinear in the padded map, clamped to it).
-  cv::Vec2f paddedSource(double u, double v) const;
 };
 
 }  // namespace radslam

@@ -268,6 +268,7 @@ int run(int argc, char** argv) {
   std::vector<size_t> kf_index;
   std::vector<SE3> kf_pose;
   std::vector<cv::Mat> kf_depth, kf_var;
+  std::vector<cv::Mat> kf_color;  // tracker keyframes: their own images (empty: the dataset's)
   int kf_width = width;
   std::unique_ptr<FrameSource> frames;
   double align_scale = 1;
@@ -301,6 +302,7 @@ int run(int argc, char** argv) {
         throw std::runtime_error(source + ": keyframe depth maps differ in size");
       cv::resize(kf.depth, kf.depth, size, 0, 0, cv::INTER_NEAREST);
       cv::resize(kf.sigma, kf.sigma, size, 0, 0, cv::INTER_NEAREST);
+      if (!kf.color.empty()) cv::resize(kf.color, kf.color, size, 0, 0, cv::INTER_AREA);
     }
     kf_width = size.width;
     frames = std::make_unique<FrameSource>(*dataset, size.width, size.height, sync);
@@ -344,6 +346,7 @@ int run(int argc, char** argv) {
       var.setTo(INFINITY, ~(sigma > 0));  // unknown sigma: no depth weight
       kf_depth.push_back(depth);
       kf_var.push_back(var);
+      kf_color.push_back(kf.color);
     }
   }
   if (kf_index.size() < 2) throw std::runtime_error("fewer than 2 keyframes with ground truth");
@@ -362,7 +365,8 @@ int run(int argc, char** argv) {
     kf.frame_index = static_cast<int64_t>(kf_index[k]);
     kf.T_world_cam = kf_pose[k];
     kf.camera = frames->camera();
-    kf.color = f->training_color;
+    // The tracker's own image when its run has one (resampled with its own angular velocity).
+    kf.color = k < kf_color.size() && !kf_color[k].empty() ? kf_color[k] : f->training_color;
     kf.depth = kf_depth[k];
     kf.depth_var = kf_var[k];
     mapper.addKeyframe(kf);

@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <stdexcept>
 
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "common/alignment.h"
@@ -137,6 +138,14 @@ TrackerRun readTrackerRun(const std::string& dir) {
     kf.sigma = readExrChannel(exr, "sigma");
     if (kf.depth.size() != kf.sigma.size())
       throw std::runtime_error(exr + ": depth and sigma channels differ in size");
+    const std::string png = (fs::path(dir) / "keyframes" / (stem + ".png")).string();
+    if (fs::is_regular_file(png)) {
+      kf.color = cv::imread(png, cv::IMREAD_COLOR);
+      if (kf.color.size() != kf.depth.size())
+        throw std::runtime_error(png + ": not a colour image of the depth's size " +
+                                 std::to_string(kf.depth.cols) + "x" +
+                                 std::to_string(kf.depth.rows));
+    }
     run.keyframes.push_back(std::move(kf));
   }
   return run;

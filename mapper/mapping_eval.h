@@ -56,13 +56,15 @@ struct TrackerKeyframe {
   SE3 T_world_cam;
   cv::Mat depth;  // m, 0 = unknown
   cv::Mat sigma;  // m
+  cv::Mat color;  // BGR, the image the mapper trains on; empty when the folder has none
 };
 struct TrackerRun {
   Trajectory trajectory;
   std::vector<TrackerKeyframe> keyframes;
 };
-/// Reads a run folder. Throws std::runtime_error naming the file that is missing or wrong
-/// (depth and sigma of different sizes, no keyframes).
+/// Reads a run folder (common/keyframe_files.h). Throws std::runtime_error naming the file
+/// that is missing or wrong (depth and sigma of different sizes, a colour image of another
+/// size, no keyframes).
 TrackerRun readTrackerRun(const std::string& dir);
 
 /// The similarity T_gt_est bringing a monocular tracker run into the ground-truth frame.

@@ -11,7 +11,7 @@
 #include <stdexcept>
 
 #include "common/evaluation.h"
-#include "common/exr_io.h"
+#include "common/keyframe_files.h"
 
 namespace radslam {
 namespace {
@@ -68,21 +68,6 @@ std::string jsonKey(const std::string& key) {
   std::string out;
   for (char c : key) out += std::isalnum(static_cast<unsigned char>(c)) ? c : '_';
   return out;
-}
-
-// DIR/<stamp>.exr: depth (m), sigma (m), inverse depth and its variance.
-void writeKeyframeExr(const std::string& dir, const Keyframe& keyframe) {
-  fs::create_directories(dir);
-  std::vector<std::pair<std::string, cv::Mat>> channels = {{"depth", keyframe.depth}};
-  if (!keyframe.depth_var.empty()) {
-    cv::Mat sigma;
-    cv::sqrt(cv::max(keyframe.depth_var, 0.0), sigma);
-    channels.emplace_back("sigma", sigma);
-  }
-  if (!keyframe.inv_depth.empty()) channels.emplace_back("inv_depth", keyframe.inv_depth);
-  if (!keyframe.inv_depth_var.empty())
-    channels.emplace_back("inv_depth_var", keyframe.inv_depth_var);
-  writeExr(dir + "/" + stampFileName(keyframe.header.utime) + ".exr", channels);
 }
 
 void writeObjectTracks(const std::string& path, const std::vector<ObjectList>& lists) {
@@ -155,7 +140,7 @@ void RunRecorder::onKeyframe(const Keyframe& keyframe, int64_t recv_utime) {
   kept.T_world_cam = keyframe.T_world_cam;
   if (keyframe.depth.empty()) return;
   try {
-    writeKeyframeExr(params_.keyframe_exr_dir, keyframe);
+    writeKeyframeFiles(params_.keyframe_exr_dir, keyframe);
     if (first) ++exr_written_;
   } catch (const std::exception& e) {
     std::cerr << "radslam-record: warning: keyframe " << keyframe.keyframe_id << ": " << e.what()
@@ -275,7 +260,7 @@ std::string RunRecorder::exportRun(const std::string& out_dir, double wall_s, in
   if (params_.export_keyframe_exr && params_.keyframe_exr_dir.empty()) {
     for (const auto& [id, keyframe] : keyframes_) {
       if (keyframe.depth.empty()) continue;
-      writeKeyframeExr(out_dir + "/keyframes", keyframe);
+      writeKeyframeFiles(out_dir + "/keyframes", keyframe);
       ++exr_written;
     }
   }

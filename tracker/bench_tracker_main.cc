@@ -15,7 +15,7 @@
 #include "common/cli.h"
 #include "common/dataset.h"
 #include "common/evaluation.h"
-#include "common/exr_io.h"
+#include "common/keyframe_files.h"
 #include "common/process_stats.h"
 #include "common/trajectory.h"
 #include "tracker/tracker_node.h"
@@ -33,7 +33,8 @@ const char* kUsage = R"(usage: radslam-bench-tracker --dataset KIND:PATH [option
   --trajectory FILE    write the final trajectory (TUM format)
   --json FILE          write the result as JSON
   --out DIR            write DIR/trajectory.txt, DIR/keyframes.txt (TUM format) and
-                       DIR/keyframes/<timestamp>.exr (channels depth, sigma; the run-folder layout)
+                       DIR/keyframes/<timestamp>.exr and .png (depth, sigma and the colour image;
+                       the run-folder layout)
                        and DIR/keyframes/camera.yaml (the keyframe images' pinhole intrinsics)
   --quiet              no per-frame progress
   --verbose            one line per frame: state, tracked cells, flow, parallax, keyframes
@@ -67,10 +68,7 @@ void writeRunFolder(const std::string& dir, const Trajectory& estimate,
   Trajectory keyframe_poses;
   for (const auto& [id, k] : keyframes) {
     keyframe_poses.push_back({static_cast<double>(k.header.utime) * 1e-6, k.T_world_cam});
-    cv::Mat sigma;
-    cv::sqrt(cv::max(k.depth_var, 0.0), sigma);
-    writeExr(dir + "/keyframes/" + stampFileName(k.header.utime) + ".exr",
-             {{"depth", k.depth}, {"sigma", sigma}});
+    writeKeyframeFiles(dir + "/keyframes", k);
   }
   if (!keyframes.empty()) {
     // Keyframe images are undistorted at the working resolution: their own intrinsics.

@@ -10,6 +10,7 @@
 #include <filesystem>
 
 #include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
 
 #include "common/exr_io.h"
 #include "mapper/mapper.h"
@@ -120,11 +121,22 @@ TEST(MappingEval, ReadsATrackerRunAndAlignsItToGroundTruth) {
              {{"depth", cv::Mat(3, 4, CV_32FC1, cv::Scalar(2))},
               {"sigma", cv::Mat(3, 4, CV_32FC1, cv::Scalar(0.1))}});
   }
+  // The keyframe images are optional; one of the depth's size is read.
+  char stem[64];
+  std::snprintf(stem, sizeof(stem), "%.6f", est[5].t);
+  const std::string png = dir + "/keyframes/" + stem + ".png";
+  cv::imwrite(png, cv::Mat(3, 4, CV_8UC3, cv::Scalar(1, 2, 3)));
   const TrackerRun run = readTrackerRun(dir);
   ASSERT_EQ(run.keyframes.size(), 2u);
   EXPECT_EQ(run.trajectory.size(), 10u);
   EXPECT_EQ(run.keyframes[1].depth.size(), cv::Size(4, 3));
   EXPECT_FLOAT_EQ(run.keyframes[1].sigma.at<float>(1, 1), 0.1f);
+  EXPECT_TRUE(run.keyframes[0].color.empty());
+  ASSERT_EQ(run.keyframes[1].color.size(), cv::Size(4, 3));
+  EXPECT_EQ(run.keyframes[1].color.at<cv::Vec3b>(2, 3), cv::Vec3b(1, 2, 3));
+  cv::imwrite(png, cv::Mat(5, 4, CV_8UC3, cv::Scalar(1, 2, 3)));
+  EXPECT_THROW(readTrackerRun(dir), std::runtime_error);  // another size
+  std::filesystem::remove(png);
 
   for (double scale : {0.0, 2.0}) {  // Umeyama scale, given scale
     const Sim3 S = alignToGroundTruth(est, gt, scale);

@@ -2,6 +2,7 @@
 #include "recorder/run_recorder.h"
 
 #include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
 
 #include <filesystem>
 #include <fstream>
@@ -58,6 +59,7 @@ void exportsTrajectoriesKeyframesAndEvaluation(bool exr_on_arrival) {
   keyframe.keyframe_id = 0;
   keyframe.depth = cv::Mat(4, 5, CV_32F, cv::Scalar(2.0f));
   keyframe.depth_var = cv::Mat(4, 5, CV_32F, cv::Scalar(0.04f));
+  keyframe.color = cv::Mat(4, 5, CV_8UC3, cv::Scalar(10, 20, 30));
   recorder.onKeyframe(keyframe, 50'000'000);
   keyframe.version = 1;
   keyframe.depth.setTo(3.0f);
@@ -85,6 +87,9 @@ void exportsTrajectoriesKeyframesAndEvaluation(bool exr_on_arrival) {
   EXPECT_FLOAT_EQ(depth.at<float>(0, 0), 3.0f);
   const cv::Mat sigma = readExrChannel(out + "/keyframes/1.000000.exr", "sigma");
   EXPECT_NEAR(sigma.at<float>(3, 4), 0.2f, 1e-6);
+  const cv::Mat color = cv::imread(out + "/keyframes/1.000000.png", cv::IMREAD_UNCHANGED);
+  ASSERT_EQ(color.type(), CV_8UC3);
+  EXPECT_EQ(color.at<cv::Vec3b>(3, 4), cv::Vec3b(10, 20, 30));
 
   const std::string json = readFile(out + "/summary.json");
   for (const char* key : {"\"ate_rmse_m\"", "\"ate_alignment\": \"sim3\"", "\"rpe_trans_m\"",
