@@ -9,6 +9,8 @@
 
 #include <opencv2/calib3d.hpp>
 
+#include "common/image_sampling.h"
+
 namespace radslam {
 namespace {
 
@@ -201,12 +203,8 @@ cv::Vec2f Undistorter::paddedSource(double u, double v) const {
   const double y = std::clamp(v + source_pad_, 0.0, padded_source_.rows - 1.001);
   const int x0 = static_cast<int>(x);
   const int y0 = static_cast<int>(y);
-  const float ax = static_cast<float>(x - x0);
-  const float ay = static_cast<float>(y - y0);
-  const cv::Vec2f* row0 = padded_source_.ptr<cv::Vec2f>(y0);
-  const cv::Vec2f* row1 = padded_source_.ptr<cv::Vec2f>(y0 + 1);
-  return (1 - ay) * ((1 - ax) * row0[x0] + ax * row0[x0 + 1]) +
-         ay * ((1 - ax) * row1[x0] + ax * row1[x0 + 1]);
+  return bilinearAt<cv::Vec2f>(padded_source_, x0, y0, static_cast<float>(x - x0),
+                               static_cast<float>(y - y0));
 }
 
 cv::Mat Undistorter::rollingShutterMap(const Vec3& omega_cam, int step) const {

@@ -424,9 +424,7 @@ double SyntheticScene::objectTime(int frame) const {
   return config_.freeze_objects ? timestamp(std::max(config_.frames - 1, 0)) : timestamp(frame);
 }
 
-SE3 SyntheticScene::rightCameraPose(int frame) const {
-  return cameraPose(frame) * SE3(SO3(), Vec3(config_.baseline_m, 0, 0));
-}
+SE3 SyntheticScene::rightCameraPose(int frame) const { return cameraPose(frame) * leftToRight(); }
 
 std::vector<ObjectPoseSample> SyntheticScene::objectPoses(int frame) const {
   std::vector<ObjectPoseSample> poses;
@@ -490,7 +488,6 @@ RenderedView SyntheticScene::renderFrame(int frame, const SE3& T_cam_sensor) con
 }
 
 Frame SyntheticScene::frame(int i) const {
-  const SE3 T_left_right(SO3(), Vec3(config_.baseline_m, 0, 0));
   RenderedView left = renderFrame(i, SE3());
   Frame f;
   f.header.utime = std::llround(timestamp(i) * 1e6);
@@ -503,7 +500,7 @@ Frame SyntheticScene::frame(int i) const {
   f.instance = left.instance;
   f.class_id = left.class_id;
   if (config_.stereo) {
-    f.right = renderFrame(i, T_left_right).color;
+    f.right = renderFrame(i, leftToRight()).color;
     f.baseline_m = config_.baseline_m;
   }
   if (config_.image_noise_sigma > 0) {

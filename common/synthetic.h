@@ -112,6 +112,7 @@ class SyntheticScene {
   Frame frame(int frame) const;
 
  private:
+  SE3 leftToRight() const { return SE3(SO3(), Vec3(config_.baseline_m, 0, 0)); }  // T_left_right
   // The frame's view of the camera T_cam_sensor from the left one, with the rolling shutter.
   RenderedView renderFrame(int frame, const SE3& T_cam_sensor) const;
 

@@ -62,10 +62,6 @@ ImagePreparer::ImagePreparer(const CameraModel& input, int working_width, int ce
                              double readout_s)
     : input_(input) {
   validateCamera(input);
-  if (!(readout_s >= 0 && readout_s < 1)) {
-    throw std::invalid_argument("rolling shutter readout must be in [0, 1) s, got " +
-                                std::to_string(readout_s));
-  }
   const cv::Size work = workingSize(input.width, input.height, working_width, cell);
   // Halve with INTER_AREA while the result stays at least the working size: the remap that
   // follows then downsamples by less than 2 and does not alias.

@@ -59,7 +59,7 @@ struct PreparedImage {
 class ImagePreparer {
  public:
   /// Throws std::invalid_argument on an invalid camera or a working size it cannot make, or
-  /// a negative readout.
+  /// a readout outside [0, 1) s.
   ///
   /// readout_s > 0 (usually input.readout_s): the camera has a rolling shutter that exposes the
   /// input's rows one after another, the last row readout_s after the first. A camera that turns

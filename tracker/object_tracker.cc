@@ -11,6 +11,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "common/camera.h"
+#include "common/image_sampling.h"
 
 namespace radslam {
 
@@ -244,10 +245,8 @@ void ObjectTracker::refineInWindow(ObjectState* state, const ObjectFrame& frame,
               y0 = static_cast<int>(std::floor(last.y()));
     w.alive = x0 >= 0 && y0 >= 0 && x0 + 1 < flow.cols && y0 + 1 < flow.rows;
     if (!w.alive) continue;
-    const float ax = static_cast<float>(last.x() - x0), ay = static_cast<float>(last.y() - y0);
-    const cv::Vec2f f =
-        (1 - ay) * ((1 - ax) * flow.at<cv::Vec2f>(y0, x0) + ax * flow.at<cv::Vec2f>(y0, x0 + 1)) +
-        ay * ((1 - ax) * flow.at<cv::Vec2f>(y0 + 1, x0) + ax * flow.at<cv::Vec2f>(y0 + 1, x0 + 1));
+    const cv::Vec2f f = bilinearAt<cv::Vec2f>(flow, x0, y0, static_cast<float>(last.x() - x0),
+                                              static_cast<float>(last.y() - y0));
     const Eigen::Vector2d next = last + Eigen::Vector2d(f[0], f[1]);
     const int xn = static_cast<int>(std::lround(next.x()));
     const int yn = static_cast<int>(std::lround(next.y()));

@@ -9,6 +9,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "common/camera.h"
+#include "common/image_sampling.h"
 
 namespace radslam {
 namespace {
@@ -18,12 +19,7 @@ bool sample(const cv::Mat& image, double u, double v, double* value) {
   if (!(u >= 0 && v >= 0 && u <= image.cols - 1.001 && v <= image.rows - 1.001)) return false;
   const int x = static_cast<int>(u);
   const int y = static_cast<int>(v);
-  const double ax = u - x;
-  const double ay = v - y;
-  const uint8_t* r0 = image.ptr<uint8_t>(y);
-  const uint8_t* r1 = image.ptr<uint8_t>(y + 1);
-  *value =
-      (1 - ay) * ((1 - ax) * r0[x] + ax * r0[x + 1]) + ay * ((1 - ax) * r1[x] + ax * r1[x + 1]);
+  *value = bilinearAt<uint8_t>(image, x, y, u - x, v - y);
   return true;
 }
 
