@@ -61,7 +61,11 @@ class MapperNode {
   /// After the final flush: serves snapshots until every renderer heard from in the last few
   /// seconds reports the final version, for at most final_sync_s.
   void awaitReplicas();
-  void addQueuedKeyframes();
+  /// Adds every queued keyframe the mapper does not hold yet, newest last, then at most
+  /// max_refinements queued versions of keyframes it holds (all when negative). Refinements
+  /// wait while the mapper trains, so versions queued meanwhile merge into one.
+  void addQueuedKeyframes(int max_refinements);
+  void addKeyframe(const Keyframe& keyframe);
   void requestMissingKeyframes();
   class Pacer;
   // One update period's FIELD messages: max_blocks_per_update blocks, of which a snapshot in

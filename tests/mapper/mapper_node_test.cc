@@ -377,6 +377,38 @@ TEST(MapperNode, AfterTheFinalFlushServesASnapshotToARendererThatLostTheLastUpda
   EXPECT_TRUE(replica.sameContent(node.mapper().field()));
 }
 
+TEST(MapperNode, AddsNewKeyframesBeforeQueuedRefinementsOneRefinementPerStep) {
+  const SyntheticScene scene = smallRoom(30);
+  Bus bus("memq://", "QUEUETEST_", "test");
+  MapperNode node(&bus, nodeParams(), "");
+  auto version = [&](int32_t id) {
+    const int i = node.mapper().keyframes().find(id);
+    return i < 0 ? -1 : node.mapper().keyframes().entry(i).keyframe.version;
+  };
+  bus.publish(channel::kKeyframe, keyframeOf(scene, 0, 0));
+  bus.publish(channel::kKeyframe, keyframeOf(scene, 10, 1));
+  ASSERT_TRUE(node.spinOnce(5));
+  ASSERT_EQ(version(0), 0);
+  ASSERT_EQ(version(1), 0);
+
+  // Two refinements (keyframe 1 twice: the versions merge) and a new keyframe in one burst.
+  for (int v = 1; v <= 2; ++v) {
+    Keyframe refined = keyframeOf(scene, 10, 1);
+    refined.version = v;
+    bus.publish(channel::kKeyframe, refined);
+  }
+  Keyframe refined0 = keyframeOf(scene, 0, 0);
+  refined0.version = 1;
+  bus.publish(channel::kKeyframe, refined0);
+  bus.publish(channel::kKeyframe, keyframeOf(scene, 20, 2));
+  ASSERT_TRUE(node.spinOnce(5));
+  EXPECT_EQ(version(2), 0);               // the new keyframe, at once
+  EXPECT_EQ(version(0) + version(1), 1);  // and one of the refinements
+  ASSERT_TRUE(node.spinOnce(5));
+  EXPECT_EQ(version(0), 1);
+  EXPECT_EQ(version(1), 2);  // only the newest version of keyframe 1 was added
+}
+
 TEST(Mapper, KeyframeBoundRetiresTheOlderOfTheClosestPair) {
   const SyntheticScene scene = smallRoom(30);
   MapperParams params = nodeParams().core;
