@@ -285,7 +285,9 @@ PreparedImage Tracker::Impl::prepareFrame(const ImagePreparer& preparer, const F
         alignRotation(previous_frame_pyramid, first, SO3::exp(-dt_s * omega), rotation_options);
     // R_b_a = R_world_b^T R_world_a = Exp(-omega dt).
     if (rotation.ok) omega = -rotation.R_b_a.log() / dt_s;
+    if (rotation.ok && first_frame && graph.size() == 1) undistortFirstKeyframe(omega);
   }
+  first_frame.reset();
   PreparedImage image = preparer.prepare(frame, false, omega);
   previous_frame_pyramid =
       coarsePyramid(image.grey, working, kRotationLevels[0], kRotationLevels[1]);
@@ -327,6 +329,28 @@ KeyframeData Tracker::Impl::newKeyframeData(const Frame& frame, const PreparedIm
 
 void Tracker::Impl::initialise(const Frame& frame, const PreparedImage& image, TrackerOutput* out) {
   makeKeyframe(frame, image, SE3(), nullptr, false, out);
+  if (preparer->readout() > 0) first_frame = frame;
+}
+
+void Tracker::Impl::undistortFirstKeyframe(const Vec3& omega) {
+  // What makeKeyframe made of the first frame, from its images turned by omega; its pose and
+  // (monocular) constant inverse depth stay.
+  KeyframeData& k = graph.keyframe(0);
+  KeyframeData fresh = newKeyframeData(*first_frame, preparer->prepare(*first_frame, false, omega),
+                                       k.ba.T_world_cam);
+  k.color = fresh.color;
+  k.grey = fresh.grey;
+  k.gradients = fresh.gradients;
+  k.structure = fresh.structure;
+  k.right_grey = fresh.right_grey;
+  k.depth = fresh.depth;
+  k.sensor_inv_depth = fresh.sensor_inv_depth;
+  k.sensor_inv_depth_var = fresh.sensor_inv_depth_var;
+  if (mode == TrackerMode::kRgbd) {
+    k.sensor_inv_depth.copyTo(k.ba.inv_depth);
+    fillInverseDepth(&k.ba.inv_depth, cv::Mat(), 1.0 / p.depth_max_m);
+  }
+  if (mode == TrackerMode::kStereo) initStereoDepth(0, p.init_inv_depth);
 }
 
 void Tracker::Impl::track(const Frame& frame, const PreparedImage& image, TrackerOutput* out) {
@@ -696,20 +720,7 @@ void Tracker::Impl::makeKeyframe(const Frame& frame, const PreparedImage& image,
   if (restart) graph.restartWindowAtLast();
   graph.slideWindow();
 
-  if (mode == TrackerMode::kStereo) {
-    // Metric inverse depth from the disparity where it is measured.
-    measureStereo(id, WarmStart::kCoarse);
-    KeyframeData& k = graph.keyframe(id);
-    const GraphEdge* stereo = nullptr;
-    for (const GraphEdge& e : graph.edges()) {
-      if (e.i == id && e.T_i_other) stereo = &e;
-    }
-    if (stereo) {
-      cv::Mat d = stereoInverseDepth(stereo->target, stereo->weight, g.grid.fx, baseline_m);
-      fillInverseDepth(&d, k.ba.inv_depth, fallback);
-      k.ba.inv_depth = d;
-    }
-  }
+  if (mode == TrackerMode::kStereo) initStereoDepth(id, fallback);
 
   std::vector<int> partners;
   if (!first && !restart) {
@@ -845,6 +856,22 @@ void Tracker::Impl::measureStereo(int id, WarmStart warm_start) {
   KeyframeData& kept = graph.keyframe(id);
   kept.stereo_target = c.target;
   kept.stereo_weight = c.weight;
+}
+
+void Tracker::Impl::initStereoDepth(int id, double fallback) {
+  // Metric inverse depth from the disparity where it is measured.
+  measureStereo(id, WarmStart::kCoarse);
+  KeyframeData& k = graph.keyframe(id);
+  const GraphEdge* stereo = nullptr;
+  for (const GraphEdge& e : graph.edges()) {
+    if (e.i == id && e.T_i_other) stereo = &e;
+  }
+  if (stereo) {
+    cv::Mat d = stereoInverseDepth(stereo->target, stereo->weight, preparer->geometry().grid.fx,
+                                   baseline_m);
+    fillInverseDepth(&d, k.ba.inv_depth, fallback);
+    k.ba.inv_depth = d;
+  }
 }
 
 void Tracker::Impl::setPrior(const KeyframeData& k, DenseBaKeyframe* out) const {

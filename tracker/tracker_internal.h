@@ -3,6 +3,7 @@
 #pragma once
 
 #include <memory>
+#include <optional>
 #include <utility>
 #include <vector>
 
@@ -90,6 +91,9 @@ struct Tracker::Impl {
   /// are tracked.
   bool measureLoop(int id, int a);
   void measureStereo(int id, WarmStart warm_start);
+  /// Measures keyframe id's stereo edge and sets its inverse depth from the disparity where
+  /// there is one, else from its current one, else fallback.
+  void initStereoDepth(int id, double fallback);
   /// The inverse-depth prior of keyframe k (sensor depth where measured, else weak) into *out.
   void setPrior(const KeyframeData& k, DenseBaKeyframe* out) const;
   void setPriors();
@@ -165,6 +169,12 @@ struct Tracker::Impl {
   RotationAlignmentOptions rotation_options;
   ImagePyramid previous_frame_pyramid;
   int64_t previous_frame_utime = 0;  // us
+  /// The first frame, kept until the second measures the angular velocity that keyframe 0 was
+  /// made without (rolling shutter only; not in checkpoints: a run resumed before its second
+  /// frame keeps keyframe 0 as made).
+  std::optional<Frame> first_frame;
+  /// Makes keyframe 0's images again from first_frame, turned by omega (rad/s, camera frame).
+  void undistortFirstKeyframe(const Vec3& omega);
 };
 
 }  // namespace radslam

@@ -200,6 +200,37 @@ TEST(ImagePreparer, UndoesTheRollingShutterOfASyntheticFrame) {
       << corrected_error << " vs " << uncorrected_error << " grey levels";
 }
 
+// Keyframe 0 is made before any angular velocity is known; the second frame measures it and
+// keyframe 0's images are made again, as seen at their middle row.
+TEST(Tracker, FirstKeyframeIsUndistortedOnceTheSecondFrameMeasuresTheRotation) {
+  constexpr double kReadoutS = 0.06;
+  constexpr int kFirst = 20;
+  const SyntheticScene rolling = fastRoom(kFirst + 2, kReadoutS);
+  const SyntheticScene global = fastRoom(kFirst + 2, 0);
+  TrackerParams params;
+  params.mode = "rgbd";
+  Tracker tracker(params);
+  tracker.process(rolling.frame(kFirst));
+  const std::vector<Keyframe> before = tracker.republishKeyframes({0});
+  tracker.process(rolling.frame(kFirst + 1));
+  const std::vector<Keyframe> after = tracker.republishKeyframes({0});
+  ASSERT_EQ(before.size(), 1u);
+  ASSERT_EQ(after.size(), 1u);
+
+  const CameraModel& working = after[0].camera;
+  const ImagePreparer plain(global.frame(kFirst).camera, working.width, 8, 0);
+  const cv::Mat reference = plain.prepare(global.frame(kFirst), false).grey;
+  const cv::Rect inner(24, 24, working.width - 48, working.height - 48);
+  auto error = [&](const Keyframe& k) {
+    cv::Mat grey;
+    cv::cvtColor(k.color, grey, cv::COLOR_BGR2GRAY);
+    return cv::norm(grey(inner), reference(inner), cv::NORM_L1) / inner.area();
+  };
+  std::printf("keyframe 0 against the global-shutter frame: %.2f grey levels after, %.2f before\n",
+              error(after[0]), error(before[0]));
+  EXPECT_LT(error(after[0]), 0.5 * error(before[0]));
+}
+
 double orientationErrorDeg(const std::vector<Frame>& frames, const std::vector<SE3>& truth,
                            double readout_s) {
   TrackerParams params;
