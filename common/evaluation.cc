@@ -27,6 +27,57 @@ std::string fixed(double value, int decimals) {
   return buffer;
 }
 
+// RMS geodesic angle (rad) of R_dst_i^-1 R_left R_src_i R_right.
+double rotationRms(const std::vector<SO3>& src, const std::vector<SO3>& dst, const SO3& left,
+                   const SO3& right) {
+  double sum = 0;
+  for (size_t k = 0; k < src.size(); ++k)
+    sum += (dst[k].inverse() * left * src[k] * right).log().squaredNorm();
+  return std::sqrt(sum / static_cast<double>(src.size()));
+}
+
+// Fits R_gt_i ~= A R_est_i X: alternating the two rotation-only alignments for a start, then
+// Gauss-Newton on both (r_i = log(R_gt_i^-1 A R_est_i X), A <- Exp(a) A, X <- X Exp(x)); scores
+// ground truth rotated by X alone as rot_rmse_deg would.
+void cameraOffsetFit(const std::vector<SO3>& est, const std::vector<SO3>& gt,
+                     TrajectoryErrors* errors) {
+  SO3 A = alignRotationOnly(est, gt), X;
+  std::vector<SO3> src(est.size()), dst(est.size());
+  for (size_t k = 0; k < gt.size(); ++k) dst[k] = gt[k].inverse();
+  constexpr int kRounds = 3;
+  for (int round = 0; round < kRounds; ++round) {
+    // gt_i^-1 ~= X^-1 (A est_i)^-1, then gt_i ~= A (est_i X).
+    for (size_t k = 0; k < est.size(); ++k) src[k] = (A * est[k]).inverse();
+    X = alignRotationOnly(src, dst).inverse();
+    for (size_t k = 0; k < est.size(); ++k) src[k] = est[k] * X;
+    A = alignRotationOnly(src, gt);
+  }
+  constexpr int kIterations = 10;
+  for (int it = 0; it < kIterations; ++it) {
+    Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();
+    Eigen::Matrix<double, 6, 1> g = Eigen::Matrix<double, 6, 1>::Zero();
+    for (size_t k = 0; k < est.size(); ++k) {
+      const SO3 M = A * est[k] * X;
+      const Vec3 r = (gt[k].inverse() * M).log();
+      Eigen::Matrix<double, 3, 6> J;
+      J.leftCols<3>() = SO3::rightJacobianInverse(r) * M.matrix().transpose();
+      J.rightCols<3>() = SO3::rightJacobianInverse(r);
+      H += J.transpose() * J;
+      g += J.transpose() * r;
+    }
+    const Eigen::Matrix<double, 6, 1> step = -H.ldlt().solve(g);
+    const SO3 A_try = SO3::exp(step.head<3>()) * A, X_try = X * SO3::exp(step.tail<3>());
+    if (!(rotationRms(est, gt, A_try, X_try) < rotationRms(est, gt, A, X))) break;
+    A = A_try;
+    X = X_try;
+  }
+  errors->rot_rmse_camera_fit_deg = rotationRms(est, gt, A, X) * kRadToDeg;
+  errors->camera_offset_deg = X.log().norm() * kRadToDeg;
+  for (size_t k = 0; k < gt.size(); ++k) src[k] = gt[k] * X;
+  errors->camera_offset_floor_deg =
+      rotationRms(src, gt, alignRotationOnly(src, gt), SO3()) * kRadToDeg;
+}
+
 }  // namespace
 
 double median(std::vector<double> values) {
@@ -100,6 +151,7 @@ TrajectoryErrors evaluateTrajectory(const Trajectory& estimate, const Trajectory
     angles.push_back((gt_rotations[k].inverse() * R_gt_est * est_rotations[k]).log().norm());
   }
   errors.rot_rmse_deg = rms(angles) * kRadToDeg;
+  if (alignment != "none") cameraOffsetFit(est_rotations, gt_rotations, &errors);
 
   std::vector<double> rpe_trans, rpe_rot;
   for (size_t k = 0; k + 1 < aligned.size(); ++k) {
@@ -153,6 +205,9 @@ std::string formatErrorsTable(const TrajectoryErrors& e) {
   row("ATE median [m]", fixed(e.ate_median_m, 4));
   row("ATE max [m]", fixed(e.ate_max_m, 4));
   row("orientation RMSE [deg]", fixed(e.rot_rmse_deg, 3));
+  row("  camera frame fitted", fixed(e.rot_rmse_camera_fit_deg, 3) + " (offset " +
+                                   fixed(e.camera_offset_deg, 2) + " deg, which alone scores " +
+                                   fixed(e.camera_offset_floor_deg, 3) + ")");
   row("RPE trans RMSE [m]", fixed(e.rpe_trans_m, 4));
   row("RPE rot RMSE [deg]", fixed(e.rpe_rot_deg, 3));
   return out.str();
@@ -167,6 +222,9 @@ std::string errorsToJson(const TrajectoryErrors& e) {
       << "  \"ate_max_m\": " << formatDouble(e.ate_max_m) << ",\n"
       << "  \"ate_alignment\": \"" << e.alignment << "\",\n"
       << "  \"rot_rmse_deg\": " << formatDouble(e.rot_rmse_deg) << ",\n"
+      << "  \"rot_rmse_camera_fit_deg\": " << formatDouble(e.rot_rmse_camera_fit_deg) << ",\n"
+      << "  \"camera_offset_deg\": " << formatDouble(e.camera_offset_deg) << ",\n"
+      << "  \"camera_offset_floor_deg\": " << formatDouble(e.camera_offset_floor_deg) << ",\n"
       << "  \"rpe_trans_m\": " << formatDouble(e.rpe_trans_m) << ",\n"
       << "  \"rpe_rot_deg\": " << formatDouble(e.rpe_rot_deg) << ",\n"
       << "  \"matched\": " << e.matched << ",\n"

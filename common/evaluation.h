@@ -19,6 +19,13 @@ struct TrajectoryErrors {
   // the best rotation-only alignment of the orientations (deg); the score of
   // rotation-dominant sequences such as TUM fr1/rpy.
   double rot_rmse_deg = 0;
+  // Diagnostic: the same with a constant rotation on the camera side fitted too (R_gt_cam_i ~=
+  // R_gt_est R_est_cam_i R_cam_offset): what is left when the ground truth's camera frame is
+  // rotated from the images' (a hand-eye calibration error). The offset's angle, and the score
+  // rot_rmse_deg gives a perfect estimate taken in that rotated frame (deg).
+  double rot_rmse_camera_fit_deg = 0;
+  double camera_offset_deg = 0;
+  double camera_offset_floor_deg = 0;
   // RMSE of the relative pose error between consecutive matched frames
   // (delta = 1 frame) after alignment: translation (m) and angle (deg).
   double rpe_trans_m = 0, rpe_rot_deg = 0;
@@ -52,7 +59,8 @@ double median(std::vector<double> values);
 std::string formatErrorsTable(const TrajectoryErrors& errors);
 
 /// JSON object with keys ate_rmse_m, ate_mean_m, ate_median_m, ate_max_m,
-/// ate_alignment, rot_rmse_deg, rpe_trans_m, rpe_rot_deg, matched, scale.
+/// ate_alignment, rot_rmse_deg, rot_rmse_camera_fit_deg, camera_offset_deg,
+/// camera_offset_floor_deg, rpe_trans_m, rpe_rot_deg, matched, scale.
 std::string errorsToJson(const TrajectoryErrors& errors);
 
 /// Writes errorsToJson to path; throws std::runtime_error naming the file.

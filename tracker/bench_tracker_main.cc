@@ -203,8 +203,11 @@ int run(int argc, char** argv) {
   std::printf("%s %s: %d frames, %zu with pose, %d keyframes (%d loop edges), ", name.c_str(),
               mode.c_str(), frames, estimate.size(), keyframes, final_out.stats.loop_edges);
   if (evaluated) {
-    std::printf("ATE %.4f m (%s), orientation %.3f deg, RPE %.4f m / %.3f deg, ", ate,
-                alignment.c_str(), rot, rpe_t, rpe_r);
+    std::printf(
+        "ATE %.4f m (%s), orientation %.3f deg (%.3f with the camera frame fitted: %.2f deg "
+        "apart, which alone scores %.3f), RPE %.4f m / %.3f deg, ",
+        ate, alignment.c_str(), rot, errors.rot_rmse_camera_fit_deg, errors.camera_offset_deg,
+        errors.camera_offset_floor_deg, rpe_t, rpe_r);
   } else {
     std::printf("not evaluated (%s), ", eval_error.c_str());
   }

@@ -116,6 +116,33 @@ TEST(EvaluateTrajectory, KnownOrientationNoiseGivesExpectedRmse) {
   EXPECT_LE(e.rot_rmse_deg, std::sqrt(2.5) + 1e-9);
 }
 
+// A perfect estimate whose camera frame is turned by a constant 1.5 deg from the ground
+// truth's (a hand-eye calibration error): rotation-only alignment cannot remove it, the camera
+// fit does and recovers the offset; small noise stays.
+TEST(EvaluateTrajectory, CameraFrameFitRecoversAConstantCameraOffset) {
+  const Trajectory gt = syntheticGroundTruth(200);
+  const SO3 R_est_gt = SO3::exp(Vec3(0.3, 0.2, -1.1));
+  const SO3 offset = SO3::exp(1.5 * kDeg * Vec3(0.8, -0.6, 0).normalized());
+  std::mt19937 gen(4);
+  std::normal_distribution<double> noise(0, 0.1 * kDeg);
+  Trajectory exact, noisy;
+  for (const StampedPose& p : gt) {
+    const SE3& T = p.T_world_cam;
+    const SO3 R = R_est_gt * T.so3() * offset;
+    exact.push_back({p.t, SE3(R, R_est_gt * T.translation())});
+    noisy.push_back({p.t, SE3(R * SO3::exp(Vec3(noise(gen), noise(gen), noise(gen))),
+                              R_est_gt * T.translation())});
+  }
+  const TrajectoryErrors e = evaluateTrajectory(exact, gt, "se3");
+  EXPECT_GT(e.rot_rmse_deg, 0.3);
+  EXPECT_NEAR(e.camera_offset_floor_deg, e.rot_rmse_deg, 1e-6);
+  EXPECT_LT(e.rot_rmse_camera_fit_deg, 1e-6);
+  EXPECT_NEAR(e.camera_offset_deg, 1.5, 1e-6);
+  const TrajectoryErrors n = evaluateTrajectory(noisy, gt, "se3");
+  EXPECT_NEAR(n.rot_rmse_camera_fit_deg, 0.1 * std::sqrt(3.0), 0.03);
+  EXPECT_NEAR(n.camera_offset_deg, 1.5, 0.05);
+}
+
 TEST(EvaluateTrajectory, ConstantDriftGivesExactRpe) {
   // Ground truth: 0.5 m forward and 2 deg yaw per frame; the estimate's every
   // step is off by the same small motion `drift`.
@@ -184,10 +211,11 @@ TEST(ErrorsReport, JsonHasTheRequiredKeysAndValues) {
   writeErrorsJson(path, e);
   const std::string json = readFile(path);
   std::remove(path.c_str());
-  for (const char* key :
-       {"\"ate_rmse_m\": ", "\"ate_alignment\": \"sim3\"",
-        "\"rot_rmse_deg\": ", "\"rpe_trans_m\": ", "\"rpe_rot_deg\": ", "\"matched\": 120",
-        "\"scale\": 2", "\"ate_mean_m\": ", "\"ate_median_m\": ", "\"ate_max_m\": "}) {
+  for (const char* key : {"\"ate_rmse_m\": ", "\"ate_alignment\": \"sim3\"", "\"rot_rmse_deg\": ",
+                          "\"rpe_trans_m\": ", "\"rpe_rot_deg\": ", "\"matched\": 120",
+                          "\"scale\": 2", "\"ate_mean_m\": ", "\"ate_median_m\": ",
+                          "\"ate_max_m\": ", "\"rot_rmse_camera_fit_deg\": ",
+                          "\"camera_offset_deg\": ", "\"camera_offset_floor_deg\": "}) {
     EXPECT_NE(json.find(key), std::string::npos) << key << " in\n" << json;
   }
   EXPECT_EQ(json.front(), '{');
