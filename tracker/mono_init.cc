@@ -105,7 +105,8 @@ TwoViewResult initializeTwoView(const CameraModel& grid, const cv::Mat& target,
   result.median_parallax_deg = sorted[sorted.size() / 2];
   if (result.median_parallax_deg < options.min_parallax_deg) {
     result.why = "median parallax " + std::to_string(result.median_parallax_deg) +
-                 " deg: rotation, translation not observable";
+                 " deg: translation too short to triangulate";
+    result.small_parallax = true;
     return result;
   }
   sorted = inv_depths;

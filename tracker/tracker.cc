@@ -9,7 +9,6 @@
 #include <opencv2/core/utility.hpp>
 
 #include "tracker/frontend_depth.h"
-#include "tracker/mono_init.h"
 #include "tracker/tracker_internal.h"
 
 namespace radslam {
@@ -430,8 +429,24 @@ void Tracker::Impl::track(const Frame& frame, const PreparedImage& image, Tracke
       medianPositive(ref.ba.inv_depth, p.init_inv_depth);
   if (isNewKeyframe(motion, policy) ||
       (mode != TrackerMode::kMono && baseline_ratio > p.keyframe_baseline_ratio)) {
-    makeKeyframe(frame, image, aligned.T_world_frame, &tracked, false, out);
-    return;
+    if (mode != TrackerMode::kMono || graph.windowIds().size() != 1) {
+      makeKeyframe(frame, image, aligned.T_world_frame, &tracked, false, out);
+      return;
+    }
+    // The second monocular keyframe: two-view geometry where the translation shows, so that BA
+    // does not start from the constant-depth alignment. A translation still too short to
+    // triangulate waits for more baseline while the first keyframe is tracked: started from
+    // constant depths, forward motion while turning became rotation (KITTI 07 from frames 20
+    // and 30: 11-12 m ATE).
+    TwoViewOptions options;
+    options.median_inv_depth = p.init_inv_depth;
+    options.min_parallax_deg = p.mono_init_min_parallax_deg;
+    const TwoViewResult two_view = initializeTwoView(g.grid, tracked.correspondences.target,
+                                                     tracked.correspondences.weight, options);
+    if (!two_view.small_parallax || motion.valid_fraction < policy.min_valid_fraction) {
+      makeKeyframe(frame, image, aligned.T_world_frame, &tracked, false, out, &two_view);
+      return;
+    }
   }
   FrameRecord r;
   r.header = frame.header;
@@ -662,22 +677,16 @@ const cv::Mat& Tracker::Impl::frameDepth(const PreparedImage& image) {
 // Keyframes
 
 void Tracker::Impl::makeKeyframe(const Frame& frame, const PreparedImage& image, SE3 T_world_frame,
-                                 const TrackedFlow* tracked, bool restart, TrackerOutput* out) {
+                                 const TrackedFlow* tracked, bool restart, TrackerOutput* out,
+                                 const TwoViewResult* two_view) {
   const GridGeometry& g = preparer->geometry();
   const bool first = graph.empty();
-  if (mode == TrackerMode::kMono && tracked && !restart && graph.windowIds().size() == 1) {
-    // The second monocular keyframe: two-view geometry where the translation shows, so that BA
-    // does not start from the constant-depth alignment.
-    KeyframeData& prev = graph.last();
-    TwoViewOptions two_view;
-    two_view.median_inv_depth = p.init_inv_depth;
-    two_view.min_parallax_deg = p.mono_init_min_parallax_deg;
-    const TwoViewResult init = initializeTwoView(g.grid, tracked->correspondences.target,
-                                                 tracked->correspondences.weight, two_view);
-    stats.two_view_init = init.ok;
-    if (init.ok) {
-      T_world_frame = prev.ba.T_world_cam * init.T_b_a.inverse();
-      fillInverseDepth(&prev.ba.inv_depth, init.inv_depth_a, p.init_inv_depth);
+  if (two_view) {
+    stats.two_view_init = two_view->ok;
+    if (two_view->ok) {
+      KeyframeData& prev = graph.last();
+      T_world_frame = prev.ba.T_world_cam * two_view->T_b_a.inverse();
+      fillInverseDepth(&prev.ba.inv_depth, two_view->inv_depth_a, p.init_inv_depth);
     }
   }
   KeyframeData kf = newKeyframeData(frame, image, T_world_frame);

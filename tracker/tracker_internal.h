@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "tracker/frontend_refine.h"
+#include "tracker/mono_init.h"
 #include "tracker/motion_only.h"
 #include "tracker/motion_segmentation.h"
 #include "tracker/object_tracker.h"
@@ -58,8 +59,11 @@ struct Tracker::Impl {
     cv::Mat forward, backward;  // keyframe -> frame, frame -> keyframe (may be empty)
     Correspondences correspondences;
   };
+  /// two_view: the second monocular keyframe's two-view geometry against the first (nullptr:
+  /// none); when ok it gives the keyframe's pose and the first keyframe's inverse depths.
   void makeKeyframe(const Frame& frame, const PreparedImage& image, SE3 T_world_frame,
-                    const TrackedFlow* tracked, bool restart, TrackerOutput* out);
+                    const TrackedFlow* tracked, bool restart, TrackerOutput* out,
+                    const TwoViewResult* two_view = nullptr);
 
   KeyframeData newKeyframeData(const Frame& frame, const PreparedImage& image,
                                const SE3& T_world_cam);

@@ -91,6 +91,21 @@ TEST(TwoViewInit, RotationAloneIsReportedAsNotObservable) {
   const TwoViewResult r = initializeTwoView(gridCamera(), views.target, views.weight);
   EXPECT_FALSE(r.ok);
   EXPECT_NE(r.why.find("rotation"), std::string::npos) << r.why;
+  EXPECT_FALSE(r.small_parallax);  // more baseline will not come from a rotation
+}
+
+TEST(TwoViewInit, TranslationBelowTheParallaxBoundIsReportedAsTooShort) {
+  std::mt19937 rng(3);
+  const SE3 T_b_a(SO3::exp(Vec3(0, 3 * M_PI / 180, 0)), Vec3(0.1, 0, -1.0));
+  const TwoViews views = makeViews(T_b_a, 0.2, 0.05, &rng);
+  TwoViewOptions options;
+  const TwoViewResult enough = initializeTwoView(gridCamera(), views.target, views.weight, options);
+  ASSERT_TRUE(enough.ok) << enough.why;
+  EXPECT_FALSE(enough.small_parallax);
+  options.min_parallax_deg = 2 * enough.median_parallax_deg;
+  const TwoViewResult r = initializeTwoView(gridCamera(), views.target, views.weight, options);
+  EXPECT_FALSE(r.ok);
+  EXPECT_TRUE(r.small_parallax) << r.why;
 }
 
 TEST(TwoViewInit, TooFewCorrespondences) {
