@@ -103,12 +103,6 @@ TwoViewResult initializeTwoView(const CameraModel& grid, const cv::Mat& target,
   std::vector<double> sorted = parallax;
   std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
   result.median_parallax_deg = sorted[sorted.size() / 2];
-  if (result.median_parallax_deg < options.min_parallax_deg) {
-    result.why = "median parallax " + std::to_string(result.median_parallax_deg) +
-                 " deg: translation too short to triangulate";
-    result.small_parallax = true;
-    return result;
-  }
   sorted = inv_depths;
   std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
   // Scaling t by k scales depths by k, inverse depths by 1 / k.
@@ -120,7 +114,12 @@ TwoViewResult initializeTwoView(const CameraModel& grid, const cv::Mat& target,
     const cv::Point& c = cells[kept[m]];
     result.inv_depth_a.at<float>(c.y, c.x) = static_cast<float>(inv_depths[m] / k);
   }
-  result.ok = true;
+  result.small_parallax = result.median_parallax_deg < options.min_parallax_deg;
+  result.ok = !result.small_parallax;
+  if (result.small_parallax) {
+    result.why = "median parallax " + std::to_string(result.median_parallax_deg) +
+                 " deg: translation too short to triangulate";
+  }
   return result;
 }
 

@@ -34,7 +34,8 @@ struct TwoViewResult {
   bool ok = false;
   std::string why;  // when !ok
   /// Not ok only because the median parallax is below min_parallax_deg: a translation shows
-  /// (a rotation alone does not explain the flow) but is too short yet to triangulate.
+  /// (a rotation alone does not explain the flow) but is short for triangulation. T_b_a and
+  /// inv_depth_a are set then too (a noisier estimate, still better than none).
   bool small_parallax = false;
   SE3 T_b_a;  // maps points of camera a to camera b; |t| in scene units
   /// CV_32FC1 grid of a: inverse depth (1/scene unit) of the inliers, NaN elsewhere.

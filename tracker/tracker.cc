@@ -434,10 +434,10 @@ void Tracker::Impl::track(const Frame& frame, const PreparedImage& image, Tracke
       return;
     }
     // The second monocular keyframe: two-view geometry where the translation shows, so that BA
-    // does not start from the constant-depth alignment. A translation still too short to
-    // triangulate waits for more baseline while the first keyframe is tracked: started from
-    // constant depths, forward motion while turning became rotation (KITTI 07 from frames 20
-    // and 30: 11-12 m ATE).
+    // does not start from the constant-depth alignment. A translation still short for
+    // triangulation waits for more baseline while the first keyframe is tracked (started from
+    // constant depths, forward motion while turning became rotation: KITTI 07 from frames 20
+    // and 30, 11-12 m ATE), and is taken as it is when the view leaves the keyframe first.
     TwoViewOptions options;
     options.median_inv_depth = p.init_inv_depth;
     options.min_parallax_deg = p.mono_init_min_parallax_deg;
@@ -682,8 +682,8 @@ void Tracker::Impl::makeKeyframe(const Frame& frame, const PreparedImage& image,
   const GridGeometry& g = preparer->geometry();
   const bool first = graph.empty();
   if (two_view) {
-    stats.two_view_init = two_view->ok;
-    if (two_view->ok) {
+    stats.two_view_init = two_view->ok || two_view->small_parallax;
+    if (stats.two_view_init) {
       KeyframeData& prev = graph.last();
       T_world_frame = prev.ba.T_world_cam * two_view->T_b_a.inverse();
       fillInverseDepth(&prev.ba.inv_depth, two_view->inv_depth_a, p.init_inv_depth);

@@ -106,6 +106,9 @@ TEST(TwoViewInit, TranslationBelowTheParallaxBoundIsReportedAsTooShort) {
   const TwoViewResult r = initializeTwoView(gridCamera(), views.target, views.weight, options);
   EXPECT_FALSE(r.ok);
   EXPECT_TRUE(r.small_parallax) << r.why;
+  // The estimate is there all the same.
+  EXPECT_LT((r.T_b_a.so3().inverse() * enough.T_b_a.so3()).log().norm(), 1e-9);
+  EXPECT_LT((r.T_b_a.translation() - enough.T_b_a.translation()).norm(), 1e-9);
 }
 
 TEST(TwoViewInit, TooFewCorrespondences) {
