@@ -76,7 +76,8 @@ Tracker::Impl::Impl(const TrackerParams& params, TrackerMode m)
         return m;
       }()) {
   upsampling.sigma_range = p.upsample_sigma_range;
-  keyframe_policy.flow_px = p.keyframe_flow_px;
+  keyframe_policy.flow_px =
+      mode == TrackerMode::kMono ? p.mono_keyframe_flow_px : p.keyframe_flow_px;
   keyframe_policy.rotation_px = p.keyframe_rotation_px;
   keyframe_policy.min_valid_fraction = p.keyframe_min_valid;
   refine_options.iterations = p.refine_iterations;

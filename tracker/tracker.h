@@ -88,11 +88,12 @@ struct TrackerParams {
   bool refine_brightness_offset = true;  // per-cell offset (auto-exposure)
 
   // Keyframes and window.
-  // Grid px, mean parallax to the last keyframe. 1.5 rather than DROID-SLAM's 2.5 px of flow:
-  // driving forward at 10 Hz, the mean parallax of the cells still tracked stays below 2 px for
-  // tens of metres, and monocular scale collapsed (synthetic street: 23 m ATE at 2.5, 0.31 m at
-  // 1.5; docs/tracker.md).
-  double keyframe_flow_px = 1.5;
+  double keyframe_flow_px = 2.5;  // grid px, mean parallax to the last keyframe
+  // Monocular: the same bound, lower. Driving forward at 10 Hz the mean parallax of the cells
+  // still tracked stays below 2 px for tens of metres, and with no metric baseline to make a
+  // keyframe (keyframe_baseline_ratio) the monocular scale collapsed (synthetic street: 23 m
+  // ATE at 2.5, 0.31 m at 1.5; docs/tracker.md).
+  double mono_keyframe_flow_px = 1.5;
   double keyframe_rotation_px = 7.0;  // grid px, mean flow of the rotation alone
   double keyframe_min_valid = 0.4;    // fraction of tracked pixels below which a keyframe is made
   // RGB-D and stereo: translation / median keyframe depth that makes a keyframe.

@@ -80,6 +80,7 @@ void validateTrackerParams(const TrackerParams& p) {
   check(p.refine_iterations >= 0 && p.refine_max_shift_px > 0,
         "refine_iterations >= 0, refine_max_shift_px > 0");
   check(p.keyframe_flow_px > 0, "keyframe_flow_px must be > 0");
+  check(p.mono_keyframe_flow_px > 0, "mono_keyframe_flow_px must be > 0");
   check(p.keyframe_rotation_px > 0, "keyframe_rotation_px must be > 0");
   check(p.keyframe_min_valid >= 0 && p.keyframe_min_valid < 1, "keyframe_min_valid in [0, 1)");
   check(p.keyframe_baseline_ratio > 0, "keyframe_baseline_ratio must be > 0");
@@ -176,6 +177,7 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("refine_max_shift_px", &p.refine_max_shift_px);
   r.get("refine_brightness_offset", &p.refine_brightness_offset);
   r.get("keyframe_flow_px", &p.keyframe_flow_px);
+  r.get("mono_keyframe_flow_px", &p.mono_keyframe_flow_px);
   r.get("keyframe_rotation_px", &p.keyframe_rotation_px);
   r.get("keyframe_min_valid", &p.keyframe_min_valid);
   r.get("keyframe_baseline_ratio", &p.keyframe_baseline_ratio);
