@@ -92,6 +92,17 @@ void Mapper::initializeField() {
   for (int i = 0; i < keyframes_.size(); ++i) allocateFor(keyframes_.entry(i));
 }
 
+float Mapper::allocationDepthLimit(const Keyframe& kf) const {
+  std::vector<float> valid_depths;
+  for (int y = params_.alloc_stride / 2; y < kf.camera.height; y += params_.alloc_stride)
+    for (int x = params_.alloc_stride / 2; x < kf.camera.width; x += params_.alloc_stride)
+      if (kf.depth.at<float>(y, x) > 0) valid_depths.push_back(kf.depth.at<float>(y, x));
+  if (valid_depths.empty()) return 0;
+  std::nth_element(valid_depths.begin(), valid_depths.begin() + valid_depths.size() / 2,
+                   valid_depths.end());
+  return params_.alloc_max_depth_ratio * valid_depths[valid_depths.size() / 2];
+}
+
 void Mapper::allocateFor(const KeyframeEntry& entry, bool new_blocks_only) {
   if (!field_.initialized()) return;
   const Keyframe& kf = entry.keyframe;
@@ -102,14 +113,8 @@ void Mapper::allocateFor(const KeyframeEntry& entry, bool new_blocks_only) {
   const cv::Mat& mask = kf.dynamic_mask;
   const int fine_level = field_.numLevels() - 1;
   const int first_new = field_.numBlocks(fine_level);
-  std::vector<float> valid_depths;
-  for (int y = params_.alloc_stride / 2; y < kf.camera.height; y += params_.alloc_stride)
-    for (int x = params_.alloc_stride / 2; x < kf.camera.width; x += params_.alloc_stride)
-      if (kf.depth.at<float>(y, x) > 0) valid_depths.push_back(kf.depth.at<float>(y, x));
-  if (valid_depths.empty()) return;
-  std::nth_element(valid_depths.begin(), valid_depths.begin() + valid_depths.size() / 2,
-                   valid_depths.end());
-  const float max_depth = params_.alloc_max_depth_ratio * valid_depths[valid_depths.size() / 2];
+  const float max_depth = allocationDepthLimit(kf);
+  if (!(max_depth > 0)) return;
   for (int y = params_.alloc_stride / 2; y < kf.camera.height; y += params_.alloc_stride) {
     for (int x = params_.alloc_stride / 2; x < kf.camera.width; x += params_.alloc_stride) {
       if (field_.numBlocks(fine_level) >= params_.max_fine_blocks) {
@@ -164,6 +169,9 @@ void Mapper::seedSurface(const KeyframeEntry& entry, int first_new_block, bool n
   const Eigen::Matrix3f R = entry.T_world_cam.rotation().cast<float>();
   const Eigen::Vector3f t = entry.T_world_cam.translation().cast<float>();
   const cv::Mat& mask = kf.dynamic_mask;
+  // Deeper pixels were not allocated for; their pixel footprints (metres wide for monocular
+  // depth outliers) would also make the new-block test below walk thousands of blocks each.
+  const float max_depth = allocationDepthLimit(kf);
   // The keyframe's image as the field's colour: its exposure undone (zero unless re-sent).
   float gain[3], offset[3];
   for (int j = 0; j < 3; ++j) {
@@ -212,7 +220,8 @@ void Mapper::seedSurface(const KeyframeEntry& entry, int first_new_block, bool n
   for (int y = 0; y < cam.height; ++y) {
     for (int x = 0; x < cam.width; ++x) {
       const float d = kf.depth.at<float>(y, x);
-      if (!(d > 0) || !std::isfinite(kf.depth_var.at<float>(y, x))) continue;  // not guesses
+      if (!(d > 0) || d > max_depth || !std::isfinite(kf.depth_var.at<float>(y, x)))
+        continue;  // (holes' guesses are not seeded)
       if (!mask.empty() && mask.at<uint8_t>(y, x) != 0) continue;
       const float footprint = d / static_cast<float>(std::min(cam.fx, cam.fy));  // m per pixel
       // Pixels much smaller than a voxel: every stride-th one in x and y, at most a voxel

@@ -113,8 +113,8 @@ void MapperNode::requestMissingKeyframes() {
 }
 
 void MapperNode::onPose(const PoseStamped& pose) {
-  // Only frames that will be rendered are kept (a few KB per 10 frames).
-  if (pose.frame_index % kFrameRenderStride == 0) frame_poses_[pose.frame_index] = pose;
+  // Which frames are rendered is known at the end, once the keyframes are (0.5 KB a frame).
+  frame_poses_[pose.frame_index] = pose;
 }
 
 void MapperNode::onStatus(const Status& status) {

@@ -22,10 +22,12 @@ std::vector<FrameView> nonKeyframeViews(const std::map<int64_t, PoseStamped>& po
   if (keyframes.size() == 0 || stride < 1) return views;
   std::map<int64_t, int> by_frame;  // keyframe frame index -> store index
   for (int i = 0; i < keyframes.size(); ++i) by_frame[keyframes.entry(i).keyframe.frame_index] = i;
+  int others = 0;  // tracked frames that are not keyframes, in frame order
   for (const auto& [frame_index, pose] : poses) {
-    if (frame_index % stride != 0 || pose.is_keyframe || by_frame.count(frame_index)) continue;
+    if (pose.is_keyframe || by_frame.count(frame_index)) continue;
     if (pose.state != TrackingState::kTracking && pose.state != TrackingState::kGroundTruth)
       continue;
+    if (others++ % stride != stride / 2) continue;  // the middle of each run of stride
     // Nearest keyframe in frame index: its camera is the one the field was trained at.
     auto next = by_frame.lower_bound(frame_index);
     auto nearest = next;

@@ -42,9 +42,10 @@ struct MapperOutputSummary {
   double checkpoint_s = 0, mesh_s = 0, renders_s = 0;  // renders_s includes the cloud
 };
 
-/// The frames to render besides the keyframes: of the tracked poses (latest per frame index),
-/// those with frame_index % stride == 0 that are neither flagged as keyframes nor the frame of
-/// a stored keyframe, tracked (not lost or initialising), each with the camera of the stored
+/// The frames to render besides the keyframes: of the tracked poses (latest per frame index)
+/// that are neither flagged as keyframes nor the frame of a stored keyframe, in frame order,
+/// the middle one of each run of stride (a scorer's held-out frames, whatever the keyframe
+/// rate), tracked (not lost or initialising), each with the camera of the stored
 /// keyframe nearest in frame index (keyframes carry the camera at training resolution).
 /// Empty when there are no keyframes. Sorted by frame index. At most max_views, evenly
 /// spread (a long run would otherwise spend minutes rendering at its end).

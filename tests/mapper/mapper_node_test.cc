@@ -85,11 +85,12 @@ TEST(MapperNode, FollowsKeyframesPublishesUpdatesAndWritesOutputs) {
     keyframes.push_back(keyframeOf(scene, keyframe_frames[i], i));
     bus.publish(channel::kKeyframe, keyframes.back());
   }
-  // Tracked poses: frame 20 first with a wrong pose, then re-published with the right one;
-  // frame 30 never arrives and frame 40 is lost, so only frames 10 and 20 get frame renders.
+  // Tracked poses: frame 17 first with a wrong pose, then re-published with the right one;
+  // frame 30 never arrives and frame 40 is lost. The other frames are 1-14, 16-24, 26-29 and
+  // 31-39: the middle one of each run of 10 (frames 6, 17, 28 and 39) gets a frame render.
   PoseStamped stale;
-  stale.frame_index = 20;
-  stale.header = scene.frame(20).header;
+  stale.frame_index = 17;
+  stale.header = scene.frame(17).header;
   stale.T_world_cam = SE3(SO3(), Vec3(5, 5, 5));
   bus.publish(channel::kPose, stale);
   for (int frame = 0; frame <= 40; ++frame) {
@@ -220,7 +221,7 @@ TEST(MapperNode, FollowsKeyframesPublishesUpdatesAndWritesOutputs) {
     ASSERT_EQ(depth.size(), kf.depth.size());
     EXPECT_NEAR(depth.at<float>(30, 40), kf.depth.at<float>(30, 40), 0.1);
   }
-  for (int frame : {10, 20}) {
+  for (int frame : {6, 17, 28, 39}) {
     const Frame f = scene.frame(frame);
     const std::string stem = stampFileName(f.header.utime);
     EXPECT_TRUE(std::filesystem::exists(out + "/renders/rgb/" + stem + ".png")) << stem;
@@ -228,7 +229,7 @@ TEST(MapperNode, FollowsKeyframesPublishesUpdatesAndWritesOutputs) {
     ASSERT_EQ(depth.size(), f.depth.size());
     EXPECT_NEAR(depth.at<float>(30, 40), f.depth.at<float>(30, 40), 0.1) << "frame " << frame;
   }
-  for (int frame : {5, 30, 40}) {
+  for (int frame : {5, 10, 20, 30, 40}) {
     const std::string stem = stampFileName(scene.frame(frame).header.utime);
     EXPECT_FALSE(std::filesystem::exists(out + "/renders/rgb/" + stem + ".png")) << frame;
   }
@@ -237,7 +238,7 @@ TEST(MapperNode, FollowsKeyframesPublishesUpdatesAndWritesOutputs) {
     (void)entry;
     ++rendered;
   }
-  EXPECT_EQ(rendered, 5u);  // 3 keyframes + frames 10 and 20
+  EXPECT_EQ(rendered, 7u);  // 3 keyframes + 4 other frames
   EXPECT_EQ(stampFileName(1305031102175304), "1305031102.175304");
 }
 
@@ -426,7 +427,7 @@ TEST(Mapper, KeyframeBoundRetiresTheOlderOfTheClosestPair) {
   EXPECT_EQ(mapper.keyframes().size(), 4);
 }
 
-TEST(MapperOutputs, NonKeyframeViewsTakeEveryTenthTrackedFrameWithTheNearestKeyframeCamera) {
+TEST(MapperOutputs, NonKeyframeViewsTakeEveryTenthOtherTrackedFrameWithTheNearestCamera) {
   KeyframeStore store;
   SyntheticConfig config;
   config.scene = "room";
@@ -439,33 +440,38 @@ TEST(MapperOutputs, NonKeyframeViewsTakeEveryTenthTrackedFrameWithTheNearestKeyf
   b.camera.fx *= 1.5;  // tells the two cameras apart
   store.insert(a);
   store.insert(b);
+  // Frames 0-50; keyframes every other frame up to 20 (as when driving forward), 30 flagged
+  // as one, 0 and 50 stored; frame 25 initialising.
   std::map<int64_t, PoseStamped> poses;
-  for (int i = 0; i <= 50; i += 5) {
+  for (int i = 0; i <= 50; ++i) {
     PoseStamped p;
     p.frame_index = i;
     p.header.utime = 1000 * i;
-    p.is_keyframe = i == 30;
+    p.is_keyframe = (i <= 20 && i % 2 == 0) || i == 30;
     p.T_world_cam = scene.cameraPose(i);
     poses[i] = p;
   }
-  poses[20].state = TrackingState::kInitializing;
+  poses[25].state = TrackingState::kInitializing;
   EXPECT_TRUE(nonKeyframeViews(poses, KeyframeStore()).empty());
+  // The others: 1 3 ... 19, 21-24, 26-29, 31-49: the 6th, 16th, 26th and 36th of them.
   const std::vector<FrameView> views = nonKeyframeViews(poses, store);
-  ASSERT_EQ(views.size(), 2u);  // 0, 50: keyframes; 20: initialising; 30: flagged keyframe
-  EXPECT_EQ(views[0].frame_index, 10);
-  EXPECT_EQ(views[0].utime, 10000);
+  ASSERT_EQ(views.size(), 4u);
+  EXPECT_EQ(views[0].frame_index, 11);
+  EXPECT_EQ(views[0].utime, 11000);
   EXPECT_EQ(views[0].camera.fx, a.camera.fx);
-  EXPECT_EQ(views[1].frame_index, 40);
+  EXPECT_EQ(views[1].frame_index, 27);
   EXPECT_EQ(views[1].camera.fx, b.camera.fx);
-  EXPECT_TRUE(views[1].T_world_cam.matrix().isApprox(scene.cameraPose(40).matrix()));
+  EXPECT_EQ(views[2].frame_index, 38);
+  EXPECT_EQ(views[3].frame_index, 48);
+  EXPECT_TRUE(views[3].T_world_cam.matrix().isApprox(scene.cameraPose(48).matrix()));
   // Past max_views, an evenly spread subset.
   for (int i = 51; i < 1000; ++i) {
-    poses[i] = poses[10];
+    poses[i] = poses[49];
     poses[i].frame_index = i;
   }
   const std::vector<FrameView> few = nonKeyframeViews(poses, store, 1, 10);
   ASSERT_EQ(few.size(), 10u);
-  EXPECT_EQ(few.front().frame_index, 5);
+  EXPECT_EQ(few.front().frame_index, 1);
   EXPECT_GT(few.back().frame_index, 850);
 }
 
