@@ -119,11 +119,11 @@ void checkCamera(const CameraModel& camera) {
 }  // namespace
 
 RenderImages FieldReplica::render(const SE3& T_world_cam, const CameraModel& camera,
-                                  const MarchParams* params) const {
+                                  const MarchParams* params, int threads) const {
   checkCamera(camera);
   if (!field_.initialized()) return emptyRender(camera);
   return renderer_.render(field_, T_world_cam, camera, params ? *params : marchParams(),
-                          params_.threads);
+                          threads > 0 ? threads : params_.threads);
 }
 
 RenderImages FieldReplica::renderPreview(const SE3& T_world_cam, const CameraModel& camera,

@@ -59,9 +59,10 @@ class FieldReplica {
   MarchParams marchParams() const;
   /// Renders a pinhole view (as Mapper::render: background and depth 0 before any field),
   /// with marchParams() or the given parameters (faster previews). Throws
-  /// std::invalid_argument on a camera without positive size and focal lengths.
+  /// std::invalid_argument on a camera without positive size and focal lengths. threads: 0 =
+  /// the replica's own (ReplicaRenderParams::threads).
   RenderImages render(const SE3& T_world_cam, const CameraModel& camera,
-                      const MarchParams* params = nullptr) const;
+                      const MarchParams* params = nullptr, int threads = 0) const;
   /// A live-view render with params (the preview's march) from the replica's baked copy
   /// (PreviewField, its skip threshold params.skip_thickness), brought up to date first for
   /// at most refresh_budget_s seconds (<= 0: all). Previews wait for each other; the replica

@@ -27,13 +27,13 @@ CameraModel scaledCamera(const CameraModel& camera, int width) {
 }
 
 int writeFinalRenders(const FieldReplica& replica, const std::vector<ViewPose>& views,
-                      const std::string& dir, const std::function<void()>& progress) {
+                      const std::string& dir, int threads, const std::function<void()>& progress) {
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);
   if (ec) throw std::runtime_error(dir + ": cannot create the render folder: " + ec.message());
   int written = 0;
   for (const ViewPose& v : views) {
-    const RenderImages images = replica.render(v.T_world_cam, v.camera);
+    const RenderImages images = replica.render(v.T_world_cam, v.camera, nullptr, threads);
     const std::string stem = dir + "/" + stampFileName(v.utime);
     if (!cv::imwrite(stem + ".png", toBgr8(images.color)))
       throw std::runtime_error(stem + ".png: cannot write the render");
@@ -45,7 +45,8 @@ int writeFinalRenders(const FieldReplica& replica, const std::vector<ViewPose>& 
 }
 
 int writeFlyThrough(const FieldReplica& replica, const std::vector<ViewPose>& views,
-                    const std::string& path, double fps, const std::function<void()>& progress) {
+                    const std::string& path, double fps, int threads,
+                    const std::function<void()>& progress) {
   if (views.empty()) return 0;
   const std::filesystem::path parent = std::filesystem::path(path).parent_path();
   std::error_code ec;
@@ -59,7 +60,7 @@ int writeFlyThrough(const FieldReplica& replica, const std::vector<ViewPose>& vi
   for (const ViewPose& v : views) {
     CameraModel c = v.camera;
     if (c.width != c0.width || c.height != c0.height) c = c0;  // one size per video
-    writer.write(toBgr8(replica.render(v.T_world_cam, c).color));
+    writer.write(toBgr8(replica.render(v.T_world_cam, c, nullptr, threads).color));
     ++frames;
     if (progress) progress();
   }

@@ -24,15 +24,16 @@ CameraModel scaledCamera(const CameraModel& camera, int width);
 
 /// Writes DIR/<timestamp>.png (colour) and DIR/<timestamp>.exr (channels "depth" and
 /// "sigma", m) for each view, creating DIR. Returns the number of views written; throws
-/// std::runtime_error naming the file when one cannot be written. progress (if set) is called
-/// after each view.
+/// std::runtime_error naming the file when one cannot be written. threads: per render (0 = the
+/// replica's own). progress (if set) is called after each view.
 int writeFinalRenders(const FieldReplica& replica, const std::vector<ViewPose>& views,
-                      const std::string& dir, const std::function<void()>& progress = {});
+                      const std::string& dir, int threads = 0,
+                      const std::function<void()>& progress = {});
 
 /// Renders the views in order into an MJPG .avi at fps. Returns the number of frames written;
 /// throws std::runtime_error naming the file when the writer cannot open it. No views: no file.
 int writeFlyThrough(const FieldReplica& replica, const std::vector<ViewPose>& views,
-                    const std::string& path, double fps,
+                    const std::string& path, double fps, int threads = 0,
                     const std::function<void()>& progress = {});
 
 }  // namespace radslam

@@ -44,6 +44,8 @@ void validate(const RendererParams& p) {
   if (!(p.video_fps > 0)) throw std::invalid_argument("video_fps must be > 0");
   if (p.video_max_frames < 1) throw std::invalid_argument("video_max_frames must be >= 1");
   if (p.final_max_renders < 1) throw std::invalid_argument("final_max_renders must be >= 1");
+  if (p.final_render_threads < 0)
+    throw std::invalid_argument("final_render_threads must be >= 0 (0 = every core)");
 }
 
 }  // namespace
@@ -71,6 +73,7 @@ RendererParams loadRendererParams(const std::string& yaml_path,
   r.get("status_rate_hz", &p.status_rate_hz);
   r.get("final_renders", &p.final_renders);
   r.get("final_max_renders", &p.final_max_renders);
+  r.get("final_render_threads", &p.final_render_threads);
   r.get("final_width", &p.final_width);
   r.get("video", &p.video);
   r.get("video_width", &p.video_width);
@@ -373,6 +376,9 @@ void RendererNode::writeFinal() {
             << " (" << replica_.gaps() << " gaps)\n";
   // The heartbeat goes on, so that a supervisor sees a renderer at work, not a hung one.
   const auto progress = [this] { heartbeat(ProcessState::kIdle); };
+  const int threads = params_.final_render_threads > 0
+                          ? params_.final_render_threads
+                          : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   try {
     if (params_.final_renders) {
       std::vector<ViewPose> views;
@@ -382,7 +388,8 @@ void RendererNode::writeFinal() {
         views.push_back(view);
       }
       views = evenlySpread(views, static_cast<size_t>(params_.final_max_renders));
-      const int n = writeFinalRenders(replica_, views, out_dir_ + "/renders/final", progress);
+      const int n =
+          writeFinalRenders(replica_, views, out_dir_ + "/renders/final", threads, progress);
       std::cerr << "radslam-renderer: wrote " << n << " keyframe renders to " << out_dir_
                 << "/renders/final\n";
     }
@@ -398,7 +405,7 @@ void RendererNode::writeFinal() {
         views.push_back(view);
       }
       const std::string path = out_dir_ + "/renders/flythrough.avi";
-      const int n = writeFlyThrough(replica_, views, path, params_.video_fps, progress);
+      const int n = writeFlyThrough(replica_, views, path, params_.video_fps, threads, progress);
       std::cerr << "radslam-renderer: wrote " << n << " frames to " << path << "\n";
     }
   } catch (const std::exception& e) {

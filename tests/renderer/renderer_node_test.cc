@@ -182,6 +182,11 @@ TEST(RendererParams, UnknownKeysAndBadValuesAreErrors) {
   EXPECT_NE(dump.find("follow_width: 200"), std::string::npos);
   EXPECT_THROW(loadRendererParams(path, {"render_threads=0"}, nullptr, nullptr),
                std::runtime_error);
+  EXPECT_THROW(loadRendererParams(path, {"final_render_threads=-1"}, nullptr, nullptr),
+               std::runtime_error);
+  EXPECT_EQ(
+      loadRendererParams(path, {"final_render_threads=3"}, nullptr, nullptr).final_render_threads,
+      3);
   std::filesystem::remove_all(dir);
 }
 
