@@ -6,6 +6,7 @@
 #include <atomic>
 #include <fstream>
 #include <sstream>
+#include <thread>
 
 namespace radslam {
 namespace {
@@ -41,6 +42,11 @@ double currentRssMb() {
 // updated when memory is unmapped, so it can trail VmRSS slightly.
 double peakRssMb() {
   return std::max({procStatusMb("VmHWM"), currentRssMb(), g_largest_rss_mb.load()});
+}
+
+int threadsOrEveryCore(int threads) {
+  if (threads > 0) return threads;
+  return static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
 }
 
 int64_t wallClockMicros() {

@@ -19,6 +19,9 @@ double currentRssMb();
 /// read (the kernel's counters are approximate); 0 when /proc is unavailable.
 double peakRssMb();
 
+/// threads when positive, else every core of this machine (at least 1).
+int threadsOrEveryCore(int threads);
+
 /// Microseconds since the Unix epoch (system clock), for Status headers.
 int64_t wallClockMicros();
 

@@ -146,10 +146,11 @@ void Mapper::allocateFor(const KeyframeEntry& entry, bool new_blocks_only) {
         field_.allocateAround(t + (lo + (hi - lo) * i / steps) * dir);
     }
   }
-  if (params_.seed_density > 0) seedSurface(entry, first_new, new_blocks_only);
+  if (params_.seed_density > 0) seedSurface(entry, first_new, new_blocks_only, max_depth);
 }
 
-void Mapper::seedSurface(const KeyframeEntry& entry, int first_new_block, bool new_blocks_only) {
+void Mapper::seedSurface(const KeyframeEntry& entry, int first_new_block, bool new_blocks_only,
+                         float max_depth) {
   // Only untouched lattice points (every channel still 0: never seeded, never trained) are
   // seeded, in any fine block; trained ones are left alone. Density: the 8 lattice points
   // around each pixel's surface point get the seed density, an opaque layer about two voxels
@@ -169,9 +170,6 @@ void Mapper::seedSurface(const KeyframeEntry& entry, int first_new_block, bool n
   const Eigen::Matrix3f R = entry.T_world_cam.rotation().cast<float>();
   const Eigen::Vector3f t = entry.T_world_cam.translation().cast<float>();
   const cv::Mat& mask = kf.dynamic_mask;
-  // Deeper pixels were not allocated for; their pixel footprints (metres wide for monocular
-  // depth outliers) would also make the new-block test below walk thousands of blocks each.
-  const float max_depth = allocationDepthLimit(kf);
   // The keyframe's image as the field's colour: its exposure undone (zero unless re-sent).
   float gain[3], offset[3];
   for (int j = 0; j < 3; ++j) {
@@ -220,6 +218,8 @@ void Mapper::seedSurface(const KeyframeEntry& entry, int first_new_block, bool n
   for (int y = 0; y < cam.height; ++y) {
     for (int x = 0; x < cam.width; ++x) {
       const float d = kf.depth.at<float>(y, x);
+      // Past max_depth nothing was allocated, and the footprints of monocular depth outliers
+      // (metres wide) would make the new-block test below walk thousands of blocks each.
       if (!(d > 0) || d > max_depth || !std::isfinite(kf.depth_var.at<float>(y, x)))
         continue;  // (holes' guesses are not seeded)
       if (!mask.empty() && mask.at<uint8_t>(y, x) != 0) continue;

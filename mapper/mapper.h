@@ -138,7 +138,9 @@ class Mapper {
   /// neither allocated for nor seeded; 0 when the keyframe has no depth.
   float allocationDepthLimit(const Keyframe& kf) const;
   void allocateFor(const KeyframeEntry& entry, bool new_blocks_only = false);
-  void seedSurface(const KeyframeEntry& entry, int first_new_block, bool new_blocks_only);
+  /// max_depth: allocationDepthLimit of the keyframe (pixels past it are not seeded).
+  void seedSurface(const KeyframeEntry& entry, int first_new_block, bool new_blocks_only,
+                   float max_depth);
   void initExposure(KeyframeEntry* entry) const;
   void retireMostRedundant(int32_t newest_id);
 

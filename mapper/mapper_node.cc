@@ -412,11 +412,6 @@ bool MapperNode::spinOnce(int timeout_ms) {
   return true;
 }
 
-int MapperNode::finalRenderThreads() const {
-  if (params_.final_render_threads > 0) return params_.final_render_threads;
-  return static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
-}
-
 void MapperNode::heartbeat() {
   if (now() - last_status_ < params_.status_period_s) return;
   last_status_ = now();
@@ -449,7 +444,7 @@ void MapperNode::finish() {
       const MapperOutputSummary s = writeMapperOutputs(
           mapper_, out_dir_,
           {params_.checkpoint_images, params_.render_stride, params_.mesh_iso,
-           params_.mesh_max_faces, finalRenderThreads(),
+           params_.mesh_max_faces, threadsOrEveryCore(params_.final_render_threads),
            [&] {
              flushField(false);
              heartbeat();

@@ -89,7 +89,6 @@ class MapperNode {
   void publishPoses(bool all = false);
   void publishStatus();
   void heartbeat();  // publishStatus at most once per status period
-  int finalRenderThreads() const;
   // Encoded as configured, when it fits the FIELD limit (waits until then).
   void publishField(FieldUpdate* update);
   void saveCheckpoint(const std::string& path);

@@ -376,9 +376,7 @@ void RendererNode::writeFinal() {
             << " (" << replica_.gaps() << " gaps)\n";
   // The heartbeat goes on, so that a supervisor sees a renderer at work, not a hung one.
   const auto progress = [this] { heartbeat(ProcessState::kIdle); };
-  const int threads = params_.final_render_threads > 0
-                          ? params_.final_render_threads
-                          : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  const int threads = threadsOrEveryCore(params_.final_render_threads);
   try {
     if (params_.final_renders) {
       std::vector<ViewPose> views;
