@@ -45,6 +45,7 @@ const char* kUsage = R"(usage: radslam-bench-dynamic [options]
                      150, width 640)
   --fps F            frame rate of the rendered sequences, Hz (default: the scene's, 30 for rooms
                      and 10 for streets)
+  --modes LIST       with --pipeline: tracker modes to run (default rgbd,stereo)
   --segmentation-only  with --pipeline: only the run with masks withheld (its ATE and IoU)
   --mask-dir DIR     with --pipeline: write each frame's true and segmented moving masks there
                      (DIR/<scene>-<mode>-<frame>.png: true in red, segmented in green,
@@ -382,8 +383,8 @@ struct PipelineRow {
 };
 
 int runPipeline(const std::vector<std::string>& scenes, int frames, int width, double fps,
-                uint64_t first_seed, int seeds, bool segmentation_only, const std::string& mask_dir,
-                const TrackerParams& base) {
+                uint64_t first_seed, int seeds, const std::vector<std::string>& modes,
+                bool segmentation_only, const std::string& mask_dir, const TrackerParams& base) {
   std::printf(
       "whole tracker, %d frames %dx%d with sensor noise (colour sigma 2, depth 0.0015 z^2), "
       "noise seeds %llu..%llu; camera ATE (SE3, m);\nobject motion error per frame (mean t m / r "
@@ -395,9 +396,8 @@ int runPipeline(const std::vector<std::string>& scenes, int frames, int width, d
       "%5s\n",
       "scene", "Hz", "mode", "obj", "frz", "dyn", "no dyn", "frozen", "frz nodyn", "ratio",
       "joint t", "r", "free t", "r", "pairs", "fps", "seg", "IoU", "fps");
-  const char* const modes[] = {"rgbd", "stereo"};
   for (const std::string& name : scenes) {
-    std::vector<PipelineRow> rows[2];
+    std::vector<std::vector<PipelineRow>> rows(modes.size());
     double scene_fps = 0;
     for (int k = 0; k < seeds; ++k) {
       SyntheticConfig config;
@@ -416,7 +416,7 @@ int runPipeline(const std::vector<std::string>& scenes, int frames, int width, d
         if (!c.dynamic) continue;
         free_classes += (free_classes.empty() ? "" : ",") + std::to_string(c.id) + ":free";
       }
-      for (int m = 0; m < 2; ++m) {
+      for (size_t m = 0; m < modes.size(); ++m) {
         TrackerParams with = base;
         with.mode = modes[m];
         TrackerParams without = with;
@@ -453,13 +453,13 @@ int runPipeline(const std::vector<std::string>& scenes, int frames, int width, d
         row.seg_fps = seg.fps;
         if (seeds > 1) {
           std::fprintf(stderr, "%s %s seed %llu: dyn %.4f frozen %.4f ratio %.2f, IoU %.2f\n",
-                       name.c_str(), modes[m], static_cast<unsigned long long>(config.seed),
+                       name.c_str(), modes[m].c_str(), static_cast<unsigned long long>(config.seed),
                        row.dyn, row.frozen, row.dyn / row.frozen, row.iou);
         }
         rows[m].push_back(row);
       }
     }
-    for (int m = 0; m < 2; ++m) {
+    for (size_t m = 0; m < modes.size(); ++m) {
       const auto median = [&](double PipelineRow::*field) {
         std::vector<double> v;
         for (const PipelineRow& r : rows[m]) v.push_back(r.*field);
@@ -471,7 +471,7 @@ int runPipeline(const std::vector<std::string>& scenes, int frames, int width, d
       std::printf(
           "%-6s %3.0f %-6s | %5.3f %5.3f | %8.4f %8.4f %8.4f %9.4f %6.2f | %8.4f %7.3f | %8.4f "
           "%7.3f | %5.0f %5.1f | %8.4f %5.2f %5.1f\n",
-          name.c_str(), scene_fps, modes[m], median(&PipelineRow::moving_share),
+          name.c_str(), scene_fps, modes[m].c_str(), median(&PipelineRow::moving_share),
           median(&PipelineRow::frozen_share), median(&PipelineRow::dyn),
           median(&PipelineRow::no_dyn), median(&PipelineRow::frozen),
           median(&PipelineRow::frozen_no_dyn), Stats::median(ratios), median(&PipelineRow::joint_t),
@@ -509,6 +509,7 @@ int run(int argc, char** argv) {
   const int frames = cli.getInt("frames", pipeline ? 150 : 60);
   const int width = cli.getInt("width", pipeline ? 640 : 320);
   const double fps = cli.getDouble("fps", 0);
+  const std::vector<std::string> modes = split(cli.get("modes", "rgbd,stereo"));
   const bool segmentation_only = cli.getBool("segmentation-only", false);
   const std::string mask_dir = cli.get("mask-dir", "");
   const std::string set = cli.get("set", "");
@@ -521,6 +522,9 @@ int run(int argc, char** argv) {
   const uint64_t seed = static_cast<uint64_t>(cli.getInt("seed", 1));
   const int seeds = cli.getInt("seeds", 1);
   cli.finish();
+  for (const std::string& mode : modes)
+    if (mode != "rgbd" && mode != "stereo")
+      throw std::invalid_argument("--modes: unknown mode '" + mode + "' (rgbd, stereo)");
   if (frames < 2 || width < 32 || stride < 1 || window < 2 || seeds < 1 ||
       !(noise.pixel_sigma > 0) || !(noise.depth_sigma_rel > 0) || noise.outlier_ratio < 0 ||
       noise.outlier_ratio >= 1)
@@ -533,7 +537,7 @@ int run(int argc, char** argv) {
     std::stringstream items(set);
     for (std::string item; std::getline(items, item, ',');)
       if (!item.empty()) overrides.push_back(item);
-    return runPipeline(scenes, frames, width, fps, seed, seeds, segmentation_only, mask_dir,
+    return runPipeline(scenes, frames, width, fps, seed, seeds, modes, segmentation_only, mask_dir,
                        loadTrackerParams("", overrides));
   }
   std::printf(
