@@ -35,11 +35,14 @@ std::vector<FrameView> nonKeyframeViews(const std::map<int64_t, PoseStamped>& po
         (next != by_frame.begin() &&
          frame_index - std::prev(next)->first < next->first - frame_index))
       nearest = std::prev(next);
+    // The frame follows that keyframe's refinement: its pose relative to the keyframe as
+    // tracked, composed with the keyframe's pose as trained.
+    const KeyframeEntry& e = keyframes.entry(nearest->second);
     FrameView v;
     v.utime = pose.header.utime;
     v.frame_index = frame_index;
-    v.T_world_cam = pose.T_world_cam;
-    v.camera = keyframes.entry(nearest->second).keyframe.camera;
+    v.T_world_cam = e.T_world_cam * e.keyframe.T_world_cam.inverse() * pose.T_world_cam;
+    v.camera = e.keyframe.camera;
     views.push_back(v);
   }
   return evenlySpread(views, max_views);

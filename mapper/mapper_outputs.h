@@ -46,7 +46,8 @@ struct MapperOutputSummary {
 /// that are neither flagged as keyframes nor the frame of a stored keyframe, in frame order,
 /// the middle one of each run of stride (a scorer's held-out frames, whatever the keyframe
 /// rate), tracked (not lost or initialising), each with the camera of the stored
-/// keyframe nearest in frame index (keyframes carry the camera at training resolution).
+/// keyframe nearest in frame index (keyframes carry the camera at training resolution) and
+/// moved with that keyframe's refinement (its pose relative to the keyframe kept as tracked).
 /// Empty when there are no keyframes. Sorted by frame index. At most max_views, evenly
 /// spread (a long run would otherwise spend minutes rendering at its end).
 std::vector<FrameView> nonKeyframeViews(const std::map<int64_t, PoseStamped>& poses,

@@ -78,6 +78,7 @@ MapperNodeParams loadMapperParams(const std::string& yaml_path,
   getFloat(r, "pose_lr_rot", &t.pose_lr_rot);
   getFloat(r, "pose_lr_trans_voxels", &t.pose_lr_trans_voxels);
   getInt64(r, "pose_warmup_rays", &t.pose_warmup_rays);
+  getInt64(r, "pose_lr_half_life_steps", &t.pose_lr_half_life_steps);
   getFloat(r, "pose_depth_weight", &t.pose_depth_weight);
   r.get("refine_exposure", &t.refine_exposure);
   getFloat(r, "exposure_lr", &t.exposure_lr);

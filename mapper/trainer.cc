@@ -64,9 +64,10 @@ Trainer::~Trainer() = default;
 
 void Trainer::setParams(const TrainerParams& params) {
   if (params.batch_rays <= 0 || params.threads <= 0 || params.surface_samples <= 0 ||
-      params.spread_samples < 0 || params.free_samples < 0)
+      params.spread_samples < 0 || params.free_samples < 0 || params.pose_lr_half_life_steps < 0)
     throw std::invalid_argument(
-        "trainer: batch_rays, threads and surface_samples must be > 0, other sample counts >= 0");
+        "trainer: batch_rays, threads and surface_samples must be > 0, other sample counts and "
+        "pose_lr_half_life_steps >= 0");
   params_ = params;
   adam_.setParams(params.adam);
   if (steps_ == 0) rng_.state = params.seed;
@@ -386,9 +387,13 @@ TrainStats Trainer::step(Field* field, KeyframeStore* keyframes) {
     ++e.pose_steps;
     const double c1 = 1.0 / (1.0 - std::pow(b1, double(e.pose_steps)));
     const double c2 = 1.0 / (1.0 - std::pow(b2, double(e.pose_steps)));
+    const double decay =
+        params_.pose_lr_half_life_steps > 0
+            ? std::exp2(-double(e.pose_steps - 1) / double(params_.pose_lr_half_life_steps))
+            : 1.0;
     Vec6 xi;
     for (int j = 0; j < 6; ++j) {
-      const double lr = j < 3 ? params_.pose_lr_trans_voxels * fine : params_.pose_lr_rot;
+      const double lr = decay * (j < 3 ? params_.pose_lr_trans_voxels * fine : params_.pose_lr_rot);
       xi[j] = -lr * (e.pose_m[j] * c1) / (std::sqrt(e.pose_v[j] * c2) + eps);
     }
     e.T_world_cam = canonicalPose(e.T_world_cam * SE3::exp(xi));

@@ -55,6 +55,11 @@ struct TrainerParams {
   float pose_lr_rot = 2e-4f;           // rad per step
   float pose_lr_trans_voxels = 0.01f;  // fine voxels per step
   int64_t pose_warmup_rays = 5000;     // rays of a keyframe before its pose moves
+  /// The pose steps halve every this many steps of the keyframe (0 = constant). Adam's step
+  /// does not shrink with the gradient, so at a constant rate the poses wander for as long as
+  /// training runs and the views between keyframes lose (fr1/rpy oracle, 6M rays: held-out
+  /// 20.83 dB constant, 22.32 dB with 250; docs/mapper.md).
+  int64_t pose_lr_half_life_steps = 250;
   /// Weight of the depth term in the pose gradient. The keyframe depths come from the same
   /// bundle adjustment as the poses, and depth residuals are biased by the field's surface
   /// quadrature (a fraction of a voxel), so the photometric term alone drives poses by default.

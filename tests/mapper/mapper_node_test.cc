@@ -464,6 +464,14 @@ TEST(MapperOutputs, NonKeyframeViewsTakeEveryTenthOtherTrackedFrameWithTheNeares
   EXPECT_EQ(views[2].frame_index, 38);
   EXPECT_EQ(views[3].frame_index, 48);
   EXPECT_TRUE(views[3].T_world_cam.matrix().isApprox(scene.cameraPose(48).matrix()));
+  // A refined keyframe carries the frames it is nearest to; the others stay.
+  const SE3 T_refined_received(SO3::exp(Vec3(0.01, -0.02, 0.005)), Vec3(0.03, 0, -0.01));
+  store.entry(1).T_world_cam = T_refined_received * store.entry(1).T_world_cam;
+  const std::vector<FrameView> moved = nonKeyframeViews(poses, store);
+  ASSERT_EQ(moved.size(), 4u);
+  EXPECT_TRUE(moved[0].T_world_cam.matrix().isApprox(scene.cameraPose(11).matrix()));
+  EXPECT_TRUE(
+      moved[3].T_world_cam.matrix().isApprox((T_refined_received * scene.cameraPose(48)).matrix()));
   // Past max_views, an evenly spread subset.
   for (int i = 51; i < 1000; ++i) {
     poses[i] = poses[49];

@@ -84,5 +84,46 @@ TEST(PoseRefinement, RealignsAPerturbedKeyframe) {
   EXPECT_TRUE(mapper.takeRefinedPoses().empty());
 }
 
+// With pose_lr_half_life_steps the pose steps shrink geometrically: Adam's normalised step does
+// not shrink by itself near the optimum, so at a constant rate a pose keeps moving.
+TEST(PoseRefinement, PoseStepsHalveEveryHalfLife) {
+  const SyntheticScene scene = smallRoom(40);
+  MapperParams params;
+  params.trainer.refine_poses = false;
+  // The largest rotation step of keyframe 6 over its pose steps [from, to).
+  const auto largest_step = [&](int64_t half_life, int from, int to) {
+    Mapper mapper(params);
+    for (int i = 0; i < 4; ++i) mapper.addKeyframe(keyframeOf(scene, i * 10, i));
+    mapper.train(40);
+    Keyframe sent = keyframeOf(scene, 15, 6);
+    Vec6 xi;
+    xi << 0.01, 0, 0, 0, 0.01, 0;
+    sent.T_world_cam = sent.T_world_cam * SE3::exp(xi);
+    mapper.addKeyframe(sent);
+    TrainerParams tp = params.trainer;
+    tp.refine_poses = true;
+    tp.pose_warmup_rays = 0;
+    tp.pose_lr_rot = 1e-3f;
+    tp.pose_lr_half_life_steps = half_life;
+    tp.batch_rays = 1024;
+    mapper.trainer().setParams(tp);
+    const int k = mapper.keyframes().find(6);
+    double largest = 0;
+    SE3 before = mapper.keyframes().entry(k).T_world_cam;
+    for (int step = 0; step < to; ++step) {
+      mapper.train(1);
+      const SE3 after = mapper.keyframes().entry(k).T_world_cam;
+      if (step >= from)
+        largest = std::max(largest, (before.inverse() * after).log().tail<3>().norm());
+      before = after;
+    }
+    return largest;
+  };
+  // Steps 60-79 with a half-life of 10 steps: at most 1e-3 x 2^-6 (x 1.5 for Adam's ratio).
+  const double bound = 1.5e-3 * std::exp2(-6.0);
+  EXPECT_LT(largest_step(10, 60, 80), bound);
+  EXPECT_GT(largest_step(0, 60, 80), bound);  // constant rate: still moving
+}
+
 }  // namespace
 }  // namespace radslam
