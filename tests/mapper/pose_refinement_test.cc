@@ -3,6 +3,7 @@
 // gauge keyframe never moves.
 #include <cmath>
 #include <cstdio>
+#include <memory>
 
 #include <gtest/gtest.h>
 #include <opencv2/imgproc.hpp>
@@ -37,26 +38,36 @@ SyntheticScene smallRoom(int frames) {
   return SyntheticScene::make(config);
 }
 
-TEST(PoseRefinement, RealignsAPerturbedKeyframe) {
-  const SyntheticScene scene = smallRoom(40);
+// A mapper trained with fixed poses for `steps` steps on frames 0, 10, 20 and 30, then given
+// keyframe 6 (frame 15, between two others) at its true pose moved by xi (right perturbation).
+std::unique_ptr<Mapper> mapperWithOffKeyframe(const SyntheticScene& scene, int steps,
+                                              const Vec6& xi) {
   MapperParams params;
   params.trainer.refine_poses = false;
-  Mapper mapper(params);
-  for (int i = 0; i < 4; ++i) mapper.addKeyframe(keyframeOf(scene, i * 10, i));
-  mapper.train(80);
-  // A new keyframe between two others, 2 cm and 0.9 degrees off.
-  const Keyframe truth = keyframeOf(scene, 15, 6);
-  Keyframe sent = truth;
+  auto mapper = std::make_unique<Mapper>(params);
+  for (int i = 0; i < 4; ++i) mapper->addKeyframe(keyframeOf(scene, i * 10, i));
+  mapper->train(steps);
+  Keyframe sent = keyframeOf(scene, 15, 6);
+  sent.T_world_cam = sent.T_world_cam * SE3::exp(xi);
+  mapper->addKeyframe(sent);
+  return mapper;
+}
+
+TEST(PoseRefinement, RealignsAPerturbedKeyframe) {
+  const SyntheticScene scene = smallRoom(40);
+  // 2 cm and 0.9 degrees off.
   Vec6 xi;
   xi << 0.015, -0.01, 0.008, 0.01, -0.01, 0.005;
-  sent.T_world_cam = truth.T_world_cam * SE3::exp(xi);
-  mapper.addKeyframe(sent);
+  const std::unique_ptr<Mapper> owner = mapperWithOffKeyframe(scene, 80, xi);
+  Mapper& mapper = *owner;
+  const Keyframe truth = keyframeOf(scene, 15, 6);
   // Refine the poses against the fixed field.
-  TrainerParams tp = params.trainer;
+  TrainerParams tp = mapper.trainer().params();
   tp.refine_poses = true;
   tp.pose_warmup_rays = 0;
   tp.pose_lr_rot = 1e-3f;
   tp.pose_lr_trans_voxels = 0.05f;
+  tp.pose_lr_half_life_steps = 0;  // a constant rate (the decay has its own test)
   tp.adam.lr_density = 0;
   tp.adam.lr_color = 0;
   tp.batch_rays = 2048;
@@ -88,19 +99,13 @@ TEST(PoseRefinement, RealignsAPerturbedKeyframe) {
 // not shrink by itself near the optimum, so at a constant rate a pose keeps moving.
 TEST(PoseRefinement, PoseStepsHalveEveryHalfLife) {
   const SyntheticScene scene = smallRoom(40);
-  MapperParams params;
-  params.trainer.refine_poses = false;
   // The largest rotation step of keyframe 6 over its pose steps [from, to).
   const auto largest_step = [&](int64_t half_life, int from, int to) {
-    Mapper mapper(params);
-    for (int i = 0; i < 4; ++i) mapper.addKeyframe(keyframeOf(scene, i * 10, i));
-    mapper.train(40);
-    Keyframe sent = keyframeOf(scene, 15, 6);
     Vec6 xi;
     xi << 0.01, 0, 0, 0, 0.01, 0;
-    sent.T_world_cam = sent.T_world_cam * SE3::exp(xi);
-    mapper.addKeyframe(sent);
-    TrainerParams tp = params.trainer;
+    const std::unique_ptr<Mapper> owner = mapperWithOffKeyframe(scene, 40, xi);
+    Mapper& mapper = *owner;
+    TrainerParams tp = mapper.trainer().params();
     tp.refine_poses = true;
     tp.pose_warmup_rays = 0;
     tp.pose_lr_rot = 1e-3f;
