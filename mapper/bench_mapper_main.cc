@@ -28,6 +28,7 @@
 #include "common/dataset.h"
 #include "common/process_stats.h"
 #include "mapper/mapper.h"
+#include "mapper/mapper_outputs.h"
 #include "mapper/mapper_params.h"
 #include "mapper/mapping_eval.h"
 
@@ -446,14 +447,19 @@ int run(int argc, char** argv) {
 
   std::vector<SE3> kf_poses;
   std::vector<Vec6> kf_exposures;
+  std::vector<const KeyframeEntry*> kf_entries;
   for (size_t k = 0; k < kf_frames.size(); ++k) {
     const KeyframeEntry& e = mapper.keyframes().entry(mapper.keyframes().find(kf_ids[k]));
+    kf_entries.push_back(&e);
     kf_poses.push_back(e.T_world_cam);
     kf_exposures.push_back(e.exposure);
   }
   // Held-out frames: the exposure interpolated in time between the keyframes around them (the
-  // frame's own image is not used); kf_frames are in time order.
+  // frame's own image is not used); kf_frames are in time order. Also each pose as the mapper
+  // renders tracked frames (nonKeyframeViews): moved with the refinement of the keyframe
+  // nearest in time.
   std::vector<Vec6> held_exposures;
+  std::vector<SE3> held_poses_following;
   for (const EvalFrame& f : held) {
     size_t b = 0;
     while (b + 1 < kf_frames.size() && kf_frames[b].utime < f.utime) ++b;
@@ -461,6 +467,9 @@ int run(int argc, char** argv) {
     held_exposures.push_back(interpolateExposure(double(f.utime), double(kf_frames[a].utime),
                                                  kf_exposures[a], double(kf_frames[b].utime),
                                                  kf_exposures[b]));
+    const size_t nearest =
+        std::abs(kf_frames[a].utime - f.utime) <= std::abs(kf_frames[b].utime - f.utime) ? a : b;
+    held_poses_following.push_back(followRefinement(*kf_entries[nearest], f.T_world_cam));
   }
   DepthError kf_depth_err, held_depth_err;
   const double psnr_kf =
@@ -468,18 +477,6 @@ int run(int argc, char** argv) {
   const double psnr_held =
       meanPsnr(mapper, held, held_poses, camera, &held_depth_err, &held_exposures);
   const double psnr_held_field = meanPsnr(mapper, held, held_poses, camera, nullptr);
-  // As the mapper renders tracked frames (nonKeyframeViews): each moved with the refinement of
-  // the keyframe nearest in time.
-  std::vector<SE3> held_poses_following;
-  for (const EvalFrame& f : held) {
-    size_t nearest = 0;
-    for (size_t k = 1; k < kf_frames.size(); ++k)
-      if (std::abs(kf_frames[k].utime - f.utime) < std::abs(kf_frames[nearest].utime - f.utime))
-        nearest = k;
-    const KeyframeEntry& e = mapper.keyframes().entry(mapper.keyframes().find(kf_ids[nearest]));
-    held_poses_following.push_back(e.T_world_cam * e.keyframe.T_world_cam.inverse() *
-                                   f.T_world_cam);
-  }
   const double psnr_held_following =
       meanPsnr(mapper, held, held_poses_following, camera, nullptr, &held_exposures);
   const double rate = rays / std::max(1e-9, train_cpu);

@@ -131,12 +131,12 @@ class Mapper {
 
  private:
   void initializeField();
-  /// Allocates around the keyframe's depth and seeds the surface it sees: in any untouched
-  /// voxel, or only in the new blocks when `new_blocks_only` (a re-sent keyframe, whose earlier
-  /// version seeded the rest).
   /// Pixels deeper than this (alloc_max_depth_ratio times the keyframe's median depth) are
   /// neither allocated for nor seeded; 0 when the keyframe has no depth.
   float allocationDepthLimit(const Keyframe& kf) const;
+  /// Allocates around the keyframe's depth and seeds the surface it sees: in any untouched
+  /// voxel, or only in the new blocks when `new_blocks_only` (a re-sent keyframe, whose earlier
+  /// version seeded the rest).
   void allocateFor(const KeyframeEntry& entry, bool new_blocks_only = false);
   /// max_depth: allocationDepthLimit of the keyframe (pixels past it are not seeded).
   void seedSurface(const KeyframeEntry& entry, int first_new_block, bool new_blocks_only,

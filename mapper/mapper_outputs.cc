@@ -15,6 +15,10 @@
 
 namespace radslam {
 
+SE3 followRefinement(const KeyframeEntry& keyframe, const SE3& T_world_frame) {
+  return keyframe.T_world_cam * keyframe.keyframe.T_world_cam.inverse() * T_world_frame;
+}
+
 std::vector<FrameView> nonKeyframeViews(const std::map<int64_t, PoseStamped>& poses,
                                         const KeyframeStore& keyframes, int stride,
                                         size_t max_views) {
@@ -35,13 +39,11 @@ std::vector<FrameView> nonKeyframeViews(const std::map<int64_t, PoseStamped>& po
         (next != by_frame.begin() &&
          frame_index - std::prev(next)->first < next->first - frame_index))
       nearest = std::prev(next);
-    // The frame follows that keyframe's refinement: its pose relative to the keyframe as
-    // tracked, composed with the keyframe's pose as trained.
     const KeyframeEntry& e = keyframes.entry(nearest->second);
     FrameView v;
     v.utime = pose.header.utime;
     v.frame_index = frame_index;
-    v.T_world_cam = e.T_world_cam * e.keyframe.T_world_cam.inverse() * pose.T_world_cam;
+    v.T_world_cam = followRefinement(e, pose.T_world_cam);  // the tracker measured it from e
     v.camera = e.keyframe.camera;
     views.push_back(v);
   }

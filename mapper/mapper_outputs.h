@@ -42,6 +42,10 @@ struct MapperOutputSummary {
   double checkpoint_s = 0, mesh_s = 0, renders_s = 0;  // renders_s includes the cloud
 };
 
+/// A frame tracked relative to a keyframe, moved with that keyframe's refinement: its pose
+/// relative to the keyframe as received, composed with the keyframe's pose as trained.
+SE3 followRefinement(const KeyframeEntry& keyframe, const SE3& T_world_frame);
+
 /// The frames to render besides the keyframes: of the tracked poses (latest per frame index)
 /// that are neither flagged as keyframes nor the frame of a stored keyframe, in frame order,
 /// the middle one of each run of stride (a scorer's held-out frames, whatever the keyframe
