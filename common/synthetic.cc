@@ -7,10 +7,10 @@
 #include <limits>
 #include <memory>
 #include <stdexcept>
-#include <thread>
 
 #include <opencv2/imgcodecs.hpp>
 
+#include "common/parallel.h"
 #include "common/synthetic_scene.h"
 
 namespace radslam {
@@ -95,16 +95,9 @@ inline Vec3 direction(const Mat3& M, double x, double y) {
 template <class Body>
 void parallelRows(int rows, int threads, const Body& body) {
   threads = std::max(1, std::min(threads, rows));
-  if (threads == 1) {
-    for (int y = 0; y < rows; ++y) body(y);
-    return;
-  }
-  std::vector<std::thread> pool;
-  for (int k = 0; k < threads; ++k)
-    pool.emplace_back([&, k] {
-      for (int y = k; y < rows; y += threads) body(y);
-    });
-  for (std::thread& t : pool) t.join();
+  runOnThreads(threads, [&](int k) {
+    for (int y = k; y < rows; y += threads) body(y);
+  });
 }
 
 class Renderer {

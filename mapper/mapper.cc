@@ -463,6 +463,13 @@ void Mapper::reset() {
   trainer_.reset();
 }
 
+void Mapper::setTrainingThreads(int threads) {
+  TrainerParams trainer = params_.trainer;
+  trainer.threads = threads;
+  trainer_.setParams(trainer);  // validates
+  params_.trainer = trainer;
+}
+
 TrainStats Mapper::train(int steps) {
   TrainStats stats;
   for (int i = 0; i < steps; ++i) stats = trainer_.step(&field_, &keyframes_);

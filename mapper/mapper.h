@@ -91,6 +91,9 @@ class Mapper {
 
   /// `steps` training steps; statistics of the last one.
   TrainStats train(int steps = 1);
+  /// Training threads from now on (>= 1; the gradients' sum is in thread order, so a given
+  /// count is deterministic).
+  void setTrainingThreads(int threads);
 
   /// Poses refined since the last call (the gauge keyframe never is).
   std::vector<RefinedPose> takeRefinedPoses();

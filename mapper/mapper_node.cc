@@ -424,11 +424,28 @@ void MapperNode::finish() {
   addQueuedKeyframes(-1);
   const double t0 = now();
   if (mapper_.field().initialized() && mapper_.keyframes().size() > 0) {
-    while (now() - t0 < params_.final_training_s) {
+    mapper_.setTrainingThreads(threadsOrEveryCore(params_.final_training_threads));
+    const int64_t rays_wanted =
+        int64_t{params_.final_rays_per_keyframe} * mapper_.keyframes().size();
+    auto raysTrained = [&] {
+      int64_t rays = 0;
+      for (int i = 0; i < mapper_.keyframes().size(); ++i)
+        rays += mapper_.keyframes().entry(i).rays_trained;
+      return rays;
+    };
+    const int64_t rays_before = raysTrained();
+    while (now() - t0 < params_.final_training_s ||
+           (raysTrained() < rays_wanted && now() - t0 < params_.final_training_max_s)) {
       last_stats_ = mapper_.train(1);
       rays_ += last_stats_.rays;
       heartbeat();
     }
+    std::cerr << "radslam-mapper: final training " << now() - t0 << " s on "
+              << mapper_.trainer().params().threads
+              << " thread(s): " << (raysTrained() - rays_before) / 1e6 << "M rays, "
+              << raysTrained() / 1e6 / mapper_.keyframes().size()
+              << "M per keyframe since it arrived (wanted " << params_.final_rays_per_keyframe / 1e6
+              << "M)\n";
   }
   train_s_ += now() - t0;
   // The final flush is paced (the sensors are quiet, but receivers' socket buffers are not
@@ -454,7 +471,9 @@ void MapperNode::finish() {
                 << s.mesh << " (" << s.mesh_faces << " faces, lattice step " << s.mesh_stride
                 << ", " << s.mesh_s << " s), " << s.renders << " keyframe and " << s.frame_renders
                 << " frame renders and " << s.cloud << " (" << s.cloud_points << " points; "
-                << s.renders_s << " s), " << s.trajectory << "\n";
+                << s.renders_s << " s), " << s.trajectory << "; keyframe renders "
+                << s.keyframe_psnr_db << " dB PSNR against the keyframe images\n";
+      reporter_.setValue("keyframe_psnr_db", s.keyframe_psnr_db);
     } catch (const std::exception& e) {
       std::cerr << "radslam-mapper: error: " << e.what() << "\n";
       reporter_.setError(e.what());

@@ -8,9 +8,11 @@
 #include <stdexcept>
 
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "common/exr_io.h"
 #include "common/trajectory.h"
+#include "mapper/mapping_eval.h"
 #include "mapper/mesh_export.h"
 
 namespace radslam {
@@ -45,6 +47,14 @@ std::vector<FrameView> nonKeyframeViews(const std::map<int64_t, PoseStamped>& po
     v.frame_index = frame_index;
     v.T_world_cam = followRefinement(e, pose.T_world_cam);  // the tracker measured it from e
     v.camera = e.keyframe.camera;
+    // The keyframes around it (the same one past either end).
+    const KeyframeEntry& before =
+        keyframes.entry((next == by_frame.begin() ? next : std::prev(next))->second);
+    const KeyframeEntry& after =
+        keyframes.entry((next == by_frame.end() ? std::prev(next) : next)->second);
+    v.exposure =
+        interpolateExposure(double(v.utime), double(before.keyframe.header.utime), before.exposure,
+                            double(after.keyframe.header.utime), after.exposure);
     views.push_back(v);
   }
   return evenlySpread(views, max_views);
@@ -56,14 +66,19 @@ double secondsSince(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
-// renders/rgb/<stem>.png and renders/depth/<stem>.exr of one view; returns the images.
+// One view: renders/rgb/<stem>.png, the colour under `exposure` (also into *seen when given),
+// and renders/depth/<stem>.exr. Returns the images in the field's own colour.
 RenderImages writeRender(const Mapper& mapper, const SE3& T_world_cam, const CameraModel& camera,
-                         int64_t utime, const std::filesystem::path& rgb_dir,
-                         const std::filesystem::path& depth_dir, int threads) {
+                         const Vec6& exposure, int64_t utime, const std::filesystem::path& rgb_dir,
+                         const std::filesystem::path& depth_dir, int threads,
+                         cv::Mat* seen = nullptr) {
   RenderImages images = mapper.render(T_world_cam, camera, threads);
+  cv::Mat color = images.color.clone();
+  applyExposure(exposure, &color);
+  if (seen) *seen = color;
   const std::string stem = stampFileName(utime);
   const std::string png = (rgb_dir / (stem + ".png")).string();
-  if (!cv::imwrite(png, toBgr8(images.color)))
+  if (!cv::imwrite(png, toBgr8(color)))
     throw std::runtime_error("mapper outputs: cannot write " + png);
   writeExr((depth_dir / (stem + ".exr")).string(),
            {{"depth", images.depth}, {"sigma", images.sigma}});
@@ -125,19 +140,24 @@ MapperOutputSummary writeMapperOutputs(const Mapper& mapper, const std::string& 
   SurfacePointCloud surface(mapper.field());
   for (int i : order) {
     const KeyframeEntry& e = store.entry(i);
+    cv::Mat seen;
     const RenderImages images =
-        writeRender(mapper, e.T_world_cam, e.keyframe.camera, e.keyframe.header.utime, rgb_dir,
-                    depth_dir, options.render_threads);
+        writeRender(mapper, e.T_world_cam, e.keyframe.camera, e.exposure, e.keyframe.header.utime,
+                    rgb_dir, depth_dir, options.render_threads, &seen);
     surface.add(e.T_world_cam, e.keyframe.camera, images, options.cloud_stride);
+    cv::Mat reference = e.keyframe.color;
+    if (reference.channels() == 1) cv::cvtColor(reference, reference, cv::COLOR_GRAY2BGR);
+    summary.keyframe_psnr_db += psnr(reference, seen);
     ++summary.renders;
     progress();
   }
+  if (summary.renders > 0) summary.keyframe_psnr_db /= summary.renders;
   const PointCloud cloud = surface.points();
   summary.cloud = (out / "map_points.ply").string();
   writePly(summary.cloud, cloud);
   summary.cloud_points = cloud.points.size();
   for (const FrameView& v : frames) {
-    writeRender(mapper, v.T_world_cam, v.camera, v.utime, rgb_dir, depth_dir,
+    writeRender(mapper, v.T_world_cam, v.camera, v.exposure, v.utime, rgb_dir, depth_dir,
                 options.render_threads);
     ++summary.frame_renders;
     progress();

@@ -30,12 +30,15 @@ struct FrameView {
   int64_t frame_index = 0;
   SE3 T_world_cam;
   CameraModel camera;
+  Vec6 exposure = Vec6::Zero();  // the colour as the frame sees it (applyExposure)
 };
 
 struct MapperOutputSummary {
   std::string checkpoint, cloud, mesh, trajectory;
   int renders = 0;        // keyframes
   int frame_renders = 0;  // other frames
+  // Mean PSNR (dB) of the keyframe renders against the images the mapper trained on.
+  double keyframe_psnr_db = 0;
   size_t cloud_points = 0, mesh_faces = 0;
   int mesh_stride = 1;  // fine voxels
   // Wall time of each step, s.
@@ -51,7 +54,8 @@ SE3 followRefinement(const KeyframeEntry& keyframe, const SE3& T_world_frame);
 /// the middle one of each run of stride (a scorer's held-out frames, whatever the keyframe
 /// rate), tracked (not lost or initialising), each with the camera of the stored
 /// keyframe nearest in frame index (keyframes carry the camera at training resolution) and
-/// moved with that keyframe's refinement (its pose relative to the keyframe kept as tracked).
+/// moved with that keyframe's refinement (its pose relative to the keyframe kept as tracked),
+/// and with the exposure interpolated in time between the keyframes around it.
 /// Empty when there are no keyframes. Sorted by frame index. At most max_views, evenly
 /// spread (a long run would otherwise spend minutes rendering at its end).
 std::vector<FrameView> nonKeyframeViews(const std::map<int64_t, PoseStamped>& poses,
@@ -61,8 +65,9 @@ std::vector<FrameView> nonKeyframeViews(const std::map<int64_t, PoseStamped>& po
 /// Writes into out_dir (created if needed): mapper.ckpt, map_points.ply, map_mesh.ply,
 /// mapper_keyframes.txt (TUM, refined poses), renders/rgb/<stem>.png (colour) and
 /// renders/depth/<stem>.exr (channels "depth" and "sigma", m) of every keyframe at its refined
-/// pose and camera, and of every view in `frames`. Throws std::runtime_error naming the file
-/// that cannot be written.
+/// pose, camera and exposure, and of every view in `frames`: each colour render predicts that
+/// frame's image, so that it can be scored against the input. Throws std::runtime_error naming
+/// the file that cannot be written.
 MapperOutputSummary writeMapperOutputs(const Mapper& mapper, const std::string& out_dir,
                                        const MapperOutputOptions& options,
                                        const std::vector<FrameView>& frames = {});

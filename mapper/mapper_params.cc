@@ -72,6 +72,8 @@ MapperNodeParams loadMapperParams(const std::string& yaml_path,
   getFloat(r, "lr_density", &t.adam.lr_density);
   getFloat(r, "lr_color", &t.adam.lr_color);
   getFloat(r, "coarse_lr_scale", &t.adam.coarse_lr_scale);
+  r.get("lr_half_life_steps", &t.adam.lr_half_life_steps);
+  getFloat(r, "lr_min_scale", &t.adam.lr_min_scale);
   getFloat(r, "adam_beta1", &t.adam.beta1);
   getFloat(r, "adam_beta2", &t.adam.beta2);
   r.get("refine_poses", &t.refine_poses);
@@ -102,6 +104,9 @@ MapperNodeParams loadMapperParams(const std::string& yaml_path,
   r.get("snapshot_min_period_s", &p.snapshot_min_period_s);
   r.get("field_max_mb_per_s", &p.field_max_mb_per_s);
   r.get("final_training_s", &p.final_training_s);
+  r.get("final_rays_per_keyframe", &p.final_rays_per_keyframe);
+  r.get("final_training_max_s", &p.final_training_max_s);
+  r.get("final_training_threads", &p.final_training_threads);
   r.get("final_sync_s", &p.final_sync_s);
   r.get("checkpoint_images", &p.checkpoint_images);
   r.get("checkpoint_period_s", &p.checkpoint_period_s);
@@ -118,9 +123,12 @@ MapperNodeParams loadMapperParams(const std::string& yaml_path,
       !(p.final_sync_s >= 0) || !(p.pose_publish_min_m >= 0) || !(p.pose_publish_min_deg >= 0) ||
       p.render_stride < 1 || p.snapshot_min_period_s < 0 || p.max_blocks_per_update < 1 ||
       !(p.field_max_mb_per_s > 0) || !(p.checkpoint_period_s >= 0) || p.mesh_max_faces < 1 ||
-      p.final_render_threads < 0)
+      p.final_render_threads < 0 || p.final_rays_per_keyframe < 0 ||
+      !(p.final_training_max_s >= p.final_training_s) || p.final_training_threads < 0)
     throw std::invalid_argument(
         "mapper: update_period_s and status_period_s must be > 0, final_training_s >= 0, "
+        "final_rays_per_keyframe >= 0, final_training_max_s >= final_training_s, "
+        "final_training_threads >= 0, "
         "final_sync_s >= 0, pose_publish_min_m and pose_publish_min_deg >= 0, "
         "render_stride >= 1, snapshot_min_period_s >= 0, max_blocks_per_update >= 1, "
         "field_max_mb_per_s > 0, checkpoint_period_s >= 0, mesh_max_faces >= 1, "

@@ -25,7 +25,16 @@ struct MapperNodeParams {
   double field_max_mb_per_s = 1.8;
   double snapshot_min_period_s = 10.0;  // snapshot requests in between are served together
   double status_period_s = 0.5;         // STATUS heartbeat
-  double final_training_s = 5.0;        // training burst after a stop request
+  // Training after a stop request (the sensors are done, and with them the tracker): at least
+  // final_training_s, then on until the keyframes have drawn final_rays_per_keyframe rays each
+  // on average since they arrived, for at most final_training_max_s in all, on
+  // final_training_threads threads (0 = every core). A live run trains far fewer rays than its
+  // map can use: fr1/rpy trains about 0.5M rays while its 5.7 s play, and its keyframes pass
+  // 25 dB at about 6M (200k per keyframe; docs/mapper.md).
+  double final_training_s = 5.0;
+  int final_rays_per_keyframe = 200000;
+  double final_training_max_s = 60.0;
+  int final_training_threads = 0;
   // After the final flush, snapshots are served until every renderer heard from reports the
   // final field version, for at most this long (s): a replica that lost the last update has no
   // later one to reveal the gap, only this STATUS's version.

@@ -3,7 +3,8 @@
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
-#include <thread>
+
+#include "common/parallel.h"
 
 namespace radslam {
 
@@ -64,10 +65,12 @@ Trainer::~Trainer() = default;
 
 void Trainer::setParams(const TrainerParams& params) {
   if (params.batch_rays <= 0 || params.threads <= 0 || params.surface_samples <= 0 ||
-      params.spread_samples < 0 || params.free_samples < 0 || params.pose_lr_half_life_steps < 0)
+      params.spread_samples < 0 || params.free_samples < 0 || params.pose_lr_half_life_steps < 0 ||
+      params.adam.lr_half_life_steps < 0 ||
+      !(params.adam.lr_min_scale > 0 && params.adam.lr_min_scale <= 1))
     throw std::invalid_argument(
-        "trainer: batch_rays, threads and surface_samples must be > 0, other sample counts and "
-        "pose_lr_half_life_steps >= 0");
+        "trainer: batch_rays, threads and surface_samples must be > 0, other sample counts, "
+        "pose_lr_half_life_steps and lr_half_life_steps >= 0, lr_min_scale in (0, 1]");
   params_ = params;
   adam_.setParams(params.adam);
   if (steps_ == 0) rng_.state = params.seed;
@@ -305,39 +308,12 @@ TrainStats Trainer::step(Field* field, KeyframeStore* keyframes) {
     ts.rng.state = rng_.next();
   }
   const int batch = params_.batch_rays;
-  if (nt == 1) {
-    traceRays(*field, *keyframes, &threads_[0], batch);
-  } else {
-    std::vector<std::thread> pool;
-    for (int k = 1; k < nt; ++k)
-      pool.emplace_back([&, k] {
-        traceRays(*field, *keyframes, &threads_[k], batch * (k + 1) / nt - batch * k / nt);
-      });
-    traceRays(*field, *keyframes, &threads_[0], batch / nt);
-    for (std::thread& th : pool) th.join();
-    // Sum every thread's gradients into thread 0's buffers.
-    FieldGradient& g0 = threads_[0].grad;
-    const size_t block_floats = size_t(Field::kBlockVoxels) * field->channels();
-    for (int k = 1; k < nt; ++k) {
-      FieldGradient& gk = threads_[k].grad;
-      for (int l = 0; l < field->numLevels(); ++l) {
-        for (int b : gk.touched(l)) {
-          g0.touch(l, b);
-          float* dst = g0.data(l) + b * block_floats;
-          float* src = gk.data(l) + b * block_floats;
-          for (size_t i = 0; i < block_floats; ++i) {
-            dst[i] += src[i];
-            src[i] = 0.f;
-          }
-          uint64_t* bits0 = g0.voxelBits(l, b);
-          const uint64_t* bitsk = gk.voxelBits(l, b);
-          for (int w = 0; w < FieldGradient::kWords; ++w) bits0[w] |= bitsk[w];
-        }
-      }
-      gk.forgetTouched();
-    }
-  }
-  stats.voxels_updated = adam_.step(field, &threads_[0].grad);
+  runOnThreads(nt, [&](int k) {
+    traceRays(*field, *keyframes, &threads_[k], batch * (k + 1) / nt - batch * k / nt);
+  });
+  std::vector<FieldGradient*> grads;
+  for (ThreadState& ts : threads_) grads.push_back(&ts.grad);
+  stats.voxels_updated = adam_.step(field, grads, nt);
 
   // Statistics, per-keyframe running losses and ray counts.
   std::vector<double> kf_loss(nk, 0.0);

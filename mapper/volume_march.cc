@@ -6,10 +6,10 @@
 #include <cstdint>
 #include <cstring>
 #include <stdexcept>
-#include <thread>
 
 #include <opencv2/imgproc.hpp>
 
+#include "common/parallel.h"
 #include "mapper/ray_kernels.h"
 #include "mapper/volume_renderer.h"
 
@@ -400,13 +400,7 @@ RenderImages renderPinhole(const SE3& T_world_cam, const CameraModel& camera, in
     }
   };
   threads = std::clamp(threads, 1, bands);
-  if (threads == 1) {
-    work(0, 1);
-  } else {
-    std::vector<std::thread> pool;
-    for (int k = 0; k < threads; ++k) pool.emplace_back(work, k, threads);
-    for (std::thread& th : pool) th.join();
-  }
+  runOnThreads(threads, [&](int k) { work(k, threads); });
   return out;
 }
 

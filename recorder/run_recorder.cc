@@ -382,6 +382,12 @@ std::string RunRecorder::exportRun(const std::string& out_dir, double wall_s, in
       text << (lag.keyframes > 0 ? "; " : "") << keyframe_arrival_.size() << " never handled";
     text << "\n";
   }
+  if (with_mapper) {
+    for (const auto& [key, value] : statuses_.at("mapper").values)
+      if (key == "keyframe_psnr_db")
+        text << "  map                    " << std::setprecision(2) << value
+             << " dB PSNR of the keyframe renders (renders/rgb) against the keyframe images\n";
+  }
   text << "  LCM log                " << log_events << " messages, " << std::setprecision(1)
        << static_cast<double>(log_bytes) / 1e6 << " MB\n";
   text << "  process     state      fps      busy s   peak RSS MB\n";

@@ -11,12 +11,15 @@
 #include <set>
 
 #include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "common/exr_io.h"
 #include "common/synthetic.h"
 #include "common/trajectory.h"
 #include "mapper/field_io.h"
 #include "mapper/mapper_outputs.h"
+#include "mapper/mapping_eval.h"
 
 namespace radslam {
 namespace {
@@ -60,6 +63,7 @@ MapperNodeParams nodeParams() {
   p.status_period_s = 1e-3;
   p.max_blocks_per_update = 50;
   p.final_training_s = 0.2;
+  p.final_rays_per_keyframe = 0;
   return p;
 }
 
@@ -239,6 +243,20 @@ TEST(MapperNode, FollowsKeyframesPublishesUpdatesAndWritesOutputs) {
     ++rendered;
   }
   EXPECT_EQ(rendered, 7u);  // 3 keyframes + 4 other frames
+  // The final STATUS scores the keyframe renders against the keyframe images, as written.
+  double psnr_written = 0;
+  for (const Keyframe& kf : keyframes) {
+    const cv::Mat png = cv::imread(out + "/renders/rgb/" + stampFileName(kf.header.utime) + ".png");
+    cv::Mat rgb;
+    png.convertTo(rgb, CV_32FC3, 1 / 255.0);
+    cv::cvtColor(rgb, rgb, cv::COLOR_BGR2RGB);
+    psnr_written += psnr(kf.color, rgb) / keyframes.size();
+  }
+  double psnr_status = 0;
+  for (const auto& [key, value] : statuses.back().values)
+    if (key == "keyframe_psnr_db") psnr_status = value;
+  EXPECT_NEAR(psnr_status, psnr_written, 0.1);
+  EXPECT_GT(psnr_written, 15);
   EXPECT_EQ(stampFileName(1305031102175304), "1305031102.175304");
 }
 
@@ -438,8 +456,14 @@ TEST(MapperOutputs, NonKeyframeViewsTakeEveryTenthOtherTrackedFrameWithTheNeares
   const SyntheticScene scene = SyntheticScene::make(config);
   Keyframe a = keyframeOf(scene, 0, 0), b = keyframeOf(scene, 50, 1);
   b.camera.fx *= 1.5;  // tells the two cameras apart
+  a.header.utime = 0;  // the frames' clock below
+  b.header.utime = 50000;
   store.insert(a);
   store.insert(b);
+  const Vec6 exposure_a = (Vec6() << 0.1, -0.1, 0, 0.02, 0, -0.04).finished();
+  const Vec6 exposure_b = (Vec6() << -0.1, 0.1, 0.2, 0, 0.06, 0).finished();
+  store.entry(0).exposure = exposure_a;
+  store.entry(1).exposure = exposure_b;
   // Frames 0-50; keyframes every other frame up to 20 (as when driving forward), 30 flagged
   // as one, 0 and 50 stored; frame 25 initialising.
   std::map<int64_t, PoseStamped> poses;
@@ -456,6 +480,10 @@ TEST(MapperOutputs, NonKeyframeViewsTakeEveryTenthOtherTrackedFrameWithTheNeares
   // The others: 1 3 ... 19, 21-24, 26-29, 31-49: the 6th, 16th, 26th and 36th of them.
   const std::vector<FrameView> views = nonKeyframeViews(poses, store);
   ASSERT_EQ(views.size(), 4u);
+  // Each with the exposure interpolated in time between the keyframes around it.
+  for (const FrameView& v : views)
+    EXPECT_TRUE(v.exposure.isApprox(exposure_a + (exposure_b - exposure_a) * (v.utime / 50000.0)))
+        << v.frame_index;
   EXPECT_EQ(views[0].frame_index, 11);
   EXPECT_EQ(views[0].utime, 11000);
   EXPECT_EQ(views[0].camera.fx, a.camera.fx);
@@ -504,6 +532,14 @@ TEST(MapperParams, LoadsTheMapperSectionAndRejectsUnknownKeys) {
   EXPECT_THROW(loadMapperParams(path, {}, &dump, &source), std::runtime_error);
   std::ofstream(path) << "mapper:\n  depth_loss: l1\n";
   EXPECT_THROW(loadMapperParams(path, {}, &dump, &source), std::invalid_argument);
+  // The final training: its cap below its minimum, negative threads or rays.
+  for (const char* bad :
+       {"final_training_max_s=2", "final_training_threads=-1", "final_rays_per_keyframe=-5"})
+    EXPECT_THROW(loadMapperParams("", {bad}, &dump, &source), std::invalid_argument) << bad;
+  p = loadMapperParams("", {"final_training_threads=2", "final_rays_per_keyframe=0"}, &dump,
+                       &source);
+  EXPECT_EQ(p.final_training_threads, 2);
+  EXPECT_EQ(p.final_rays_per_keyframe, 0);
 }
 
 }  // namespace

@@ -1,13 +1,17 @@
 // Training: the field fits a synthetic room (PSNR on the training views), dynamic pixels are
-// never trained on, new keyframes are favoured, threads and depth-loss modes work.
+// never trained on, new keyframes are favoured, threads and depth-loss modes work, and the
+// optimiser's step on several threads' gradients equals its step on their sum.
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <random>
 
 #include <gtest/gtest.h>
 #include <opencv2/imgproc.hpp>
 
 #include "common/synthetic.h"
 #include "mapper/mapper.h"
+#include "mapper/sparse_adam.h"
 
 namespace radslam {
 namespace {
@@ -169,6 +173,103 @@ TEST(Trainer, ThreadsGiveTheSameQuality) {
   for (int i = 0; i < 3; ++i) again.addKeyframe(keyframeOf(scene, i * 10, i));
   again.train(41);
   EXPECT_TRUE(again.field().sameContent(mapper.field()));
+}
+
+// Random gradients on random voxels of every block (about a third of them), summed into *sum.
+void addRandomGradient(const Field& field, std::mt19937* rng, FieldGradient* grad,
+                       FieldGradient* sum) {
+  std::uniform_real_distribution<float> value(-1.f, 1.f);
+  const int C = field.channels();
+  for (int l = 0; l < field.numLevels(); ++l) {
+    for (int b = 0; b < field.numBlocks(l); ++b) {
+      for (int i = 0; i < Field::kBlockVoxels; ++i) {
+        if ((*rng)() % 3 != 0) continue;
+        const int voxel = b * Field::kBlockVoxels + i;
+        for (FieldGradient* g : {grad, sum}) {
+          g->touch(l, b);
+          g->markVoxel(l, voxel);
+        }
+        for (int ch = 0; ch < C; ++ch) {
+          const float x = value(*rng);
+          grad->data(l)[size_t(voxel) * C + ch] = x;
+          sum->data(l)[size_t(voxel) * C + ch] += x;
+        }
+      }
+    }
+  }
+}
+
+TEST(SparseAdam, AStepOnSeveralBuffersEqualsTheStepOnTheirSum) {
+  Field reference(FieldGeometry::make(0.05, 2, 4, 0, -4.6f));
+  for (int i = 0; i < 12; ++i) {
+    reference.allocateBlock(0, Eigen::Vector3i(i % 3, i / 3, 0));
+    reference.allocateBlock(1, Eigen::Vector3i(i % 4, i / 4, 1));
+  }
+  Field on_one_thread = reference, on_two_threads = reference;
+  SparseAdam adam_sum, adam_one, adam_two;
+  std::mt19937 rng(7);
+  for (int step = 0; step < 3; ++step) {
+    // Three buffers (training threads), each marking its own random voxels, and a copy.
+    FieldGradient sum, buffers[2][3];
+    sum.resize(reference);
+    for (int k = 0; k < 3; ++k) {
+      buffers[0][k].resize(reference);
+      addRandomGradient(reference, &rng, &buffers[0][k], &sum);
+      buffers[1][k] = buffers[0][k];
+    }
+    const int64_t updated = adam_sum.step(&reference, &sum);
+    EXPECT_GT(updated, 0);
+    EXPECT_EQ(adam_one.step(&on_one_thread, {&buffers[0][0], &buffers[0][1], &buffers[0][2]}, 1),
+              updated);
+    EXPECT_EQ(adam_two.step(&on_two_threads, {&buffers[1][0], &buffers[1][1], &buffers[1][2]}, 2),
+              updated);
+    // The sum is taken in buffer order on any number of threads: the same floats.
+    EXPECT_TRUE(on_one_thread.sameContent(reference)) << "step " << step;
+    EXPECT_TRUE(on_two_threads.sameContent(reference)) << "step " << step;
+    // Every buffer is left zeroed, with nothing touched.
+    for (int copy = 0; copy < 2; ++copy) {
+      for (const FieldGradient& g : buffers[copy]) {
+        for (int l = 0; l < reference.numLevels(); ++l) {
+          EXPECT_TRUE(g.touched(l).empty());
+          for (size_t i = 0; i < reference.levelSize(l); ++i) ASSERT_EQ(g.data(l)[i], 0.f);
+        }
+      }
+    }
+  }
+}
+
+TEST(SparseAdam, EachVoxelsRateHalvesEveryHalfLifeOfItsOwnSteps) {
+  Field field(FieldGeometry::make(0.05, 2, 4, 0, -4.6f));
+  const int block = field.allocateBlock(1, Eigen::Vector3i(0, 0, 0));
+  AdamParams params;
+  params.lr_half_life_steps = 10;
+  params.lr_min_scale = 0.25f;
+  SparseAdam adam(params);
+  const int C = field.channels();
+  const int first = block * Field::kBlockVoxels, second = first + 1;
+  // A constant gradient makes Adam's step exactly the rate (bias-corrected moments g and g^2).
+  auto expectedStep = [&](int t) {
+    return params.lr_density * std::max(0.25, std::exp2(-(t - 1) / 10.0));
+  };
+  for (int step = 1; step <= 50; ++step) {
+    FieldGradient grad;
+    grad.resize(field);
+    grad.touch(1, block);
+    grad.data(1)[size_t(first) * C] = 1.f;
+    grad.markVoxel(1, first);
+    if (step > 20) {  // the second voxel joins late: its own count starts at 1
+      grad.data(1)[size_t(second) * C] = 1.f;
+      grad.markVoxel(1, second);
+    }
+    const float before_first = field.levelData(1)[size_t(first) * C];
+    const float before_second = field.levelData(1)[size_t(second) * C];
+    adam.step(&field, &grad);
+    EXPECT_NEAR(before_first - field.levelData(1)[size_t(first) * C], expectedStep(step), 1e-5)
+        << "step " << step;
+    EXPECT_NEAR(before_second - field.levelData(1)[size_t(second) * C],
+                step > 20 ? expectedStep(step - 20) : 0.0, 1e-5)
+        << "step " << step;
+  }
 }
 
 TEST(Trainer, DepthLossModes) {

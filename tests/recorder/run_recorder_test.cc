@@ -144,6 +144,7 @@ TEST(RunRecorderTest, MeasuresHowLongKeyframesWaitForTheMapper) {
   tracker.last_frame_utime = 3'000'000;
   recorder.onStatus(tracker, 12'600'000);
   mapper.last_frame_utime = 2'000'000;
+  mapper.values = {{"keyframe_psnr_db", 25.456}};  // its final STATUS scores its renders
   recorder.onStatus(mapper, 13'000'000);
 
   const RunRecorder::MapperLag lag = recorder.mapperLag();
@@ -157,7 +158,12 @@ TEST(RunRecorderTest, MeasuresHowLongKeyframesWaitForTheMapper) {
                          "handled, 2 keyframes; 1 never handled"),
             std::string::npos)
       << summary;
+  EXPECT_NE(summary.find("map                    25.46 dB PSNR of the keyframe renders"),
+            std::string::npos)
+      << summary;
   EXPECT_NE(readFile(out + "/summary.json").find("\"mapper_lag_max_s\": 2"), std::string::npos);
+  EXPECT_NE(readFile(out + "/summary.json").find("\"keyframe_psnr_db\": 25.456"),
+            std::string::npos);
 }
 
 TEST(RunRecorderTest, ReportsTrafficPerChannel) {
