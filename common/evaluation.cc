@@ -36,11 +36,27 @@ double rotationRms(const std::vector<SO3>& src, const std::vector<SO3>& dst, con
   return std::sqrt(sum / static_cast<double>(src.size()));
 }
 
-// Fits R_gt_i ~= A R_est_i X: alternating the two rotation-only alignments for a start, then
-// Gauss-Newton on both (r_i = log(R_gt_i^-1 A R_est_i X), A <- Exp(a) A, X <- X Exp(x)); scores
-// ground truth rotated by X alone as rot_rmse_deg would.
+// Scores ground truth rotated by the fitted camera offset alone, as rot_rmse_deg would.
 void cameraOffsetFit(const std::vector<SO3>& est, const std::vector<SO3>& gt,
                      TrajectoryErrors* errors) {
+  const RotationAlignment fit = alignRotationsWithCameraOffset(est, gt);
+  errors->rot_rmse_camera_fit_deg = rotationRms(est, gt, fit.world, fit.camera) * kRadToDeg;
+  errors->camera_offset_deg = fit.camera.log().norm() * kRadToDeg;
+  std::vector<SO3> rotated(gt.size());
+  for (size_t k = 0; k < gt.size(); ++k) rotated[k] = gt[k] * fit.camera;
+  errors->camera_offset_floor_deg =
+      rotationRms(rotated, gt, alignRotationOnly(rotated, gt), SO3()) * kRadToDeg;
+}
+
+}  // namespace
+
+// Alternating the two rotation-only alignments for a start, then Gauss-Newton on both
+// (r_i = log(R_gt_i^-1 A R_est_i X), A <- Exp(a) A, X <- X Exp(x)).
+RotationAlignment alignRotationsWithCameraOffset(const std::vector<SO3>& est,
+                                                 const std::vector<SO3>& gt) {
+  if (est.size() != gt.size() || est.size() < 2)
+    throw std::invalid_argument(
+        "alignRotationsWithCameraOffset: needs at least 2 pairs of rotations");
   SO3 A = alignRotationOnly(est, gt), X;
   std::vector<SO3> src(est.size()), dst(est.size());
   for (size_t k = 0; k < gt.size(); ++k) dst[k] = gt[k].inverse();
@@ -71,14 +87,8 @@ void cameraOffsetFit(const std::vector<SO3>& est, const std::vector<SO3>& gt,
     A = A_try;
     X = X_try;
   }
-  errors->rot_rmse_camera_fit_deg = rotationRms(est, gt, A, X) * kRadToDeg;
-  errors->camera_offset_deg = X.log().norm() * kRadToDeg;
-  for (size_t k = 0; k < gt.size(); ++k) src[k] = gt[k] * X;
-  errors->camera_offset_floor_deg =
-      rotationRms(src, gt, alignRotationOnly(src, gt), SO3()) * kRadToDeg;
+  return {A, X};
 }
-
-}  // namespace
 
 double median(std::vector<double> values) {
   if (values.empty()) return 0.0;

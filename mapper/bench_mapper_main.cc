@@ -51,6 +51,10 @@ const char* kUsage = R"(usage: radslam-bench-mapper --dataset KIND:PATH [options
   --edge-px P        oracle keyframes: depth within P pixels of the source image (scaled to
                      the keyframe width) of a pixel more than 10 % deeper is not used (Kinect
                      foreground edges, docs/mapper.md); default 8, 0 keeps it
+  --fit-camera-frame tracker keyframes: fit a constant rotation between the ground truth's
+                     camera frame and the images' into the alignment too (a hand-eye
+                     calibration error; the tracker's benchmark reports it) and render the
+                     held-out frames in the images' frame
   --sync-colour S    s added to the colour images' stamps where ground truth is looked up
   --sync-depth S     the same for the depth images' stamps (default 0 both; TUM fr1/rpy measured
                      -0.005 and -0.020, docs/mapper.md)
@@ -237,6 +241,7 @@ int run(int argc, char** argv) {
   const std::string set = cl.get("set", "");
   const int edge_px = cl.getInt("edge-px", 8);
   const SensorSync sync{cl.getDouble("sync-colour", 0), cl.getDouble("sync-depth", 0)};
+  const bool fit_camera_frame = cl.getBool("fit-camera-frame", false);
   cl.finish();
   if (spec.empty()) throw std::runtime_error("--dataset KIND:PATH is required");
   if (source != "oracle" && source.rfind("tracker:", 0) != 0)
@@ -244,6 +249,8 @@ int run(int argc, char** argv) {
   if (!(budget > 0) || width < 16 || kf_stride < 1 || checkpoints < 1)
     throw std::runtime_error("--rays, --width, --kf-stride and --checkpoints must be positive");
   if (edge_px < 0) throw std::runtime_error("--edge-px must be 0 or more");
+  if (fit_camera_frame && source == "oracle")
+    throw std::runtime_error("--fit-camera-frame needs tracker keyframes");
 
   MapperParams params;
   {
@@ -274,6 +281,7 @@ int run(int argc, char** argv) {
   int kf_width = width;
   std::unique_ptr<FrameSource> frames;
   double align_scale = 1;
+  SO3 camera_offset;  // --fit-camera-frame: the ground truth's camera frame from the images'
   if (source == "oracle") {
     std::string error;
     const std::optional<Frame> first = dataset->frame(0, &error);
@@ -335,7 +343,8 @@ int run(int argc, char** argv) {
     }
     Trajectory on_ground_truth_clock = tracked.trajectory;
     for (StampedPose& pose : on_ground_truth_clock) pose.t += sync.colour_s;
-    const Sim3 S = alignToGroundTruth(on_ground_truth_clock, dataset->groundTruth(), scale);
+    const Sim3 S = alignToGroundTruth(on_ground_truth_clock, dataset->groundTruth(), scale, 0.05,
+                                      fit_camera_frame ? &camera_offset : nullptr);
     align_scale = S.scale();
     for (size_t k = 0; k < tracked.keyframes.size(); ++k) {
       if (matched[k] == SIZE_MAX) continue;
@@ -389,7 +398,8 @@ int run(int argc, char** argv) {
     if (f) held.push_back(std::move(*f));
   }
   std::vector<SE3> held_poses;
-  for (const EvalFrame& f : held) held_poses.push_back(f.T_world_cam);
+  for (const EvalFrame& f : held)
+    held_poses.push_back(f.T_world_cam * SE3(camera_offset.inverse(), Vec3::Zero()));
   const CameraModel& camera = frames->camera();
   const Field& field = mapper.field();
   if (!field.initialized()) throw std::runtime_error("no keyframe depth: the field is empty");
@@ -397,6 +407,9 @@ int run(int argc, char** argv) {
               dataset->name().c_str(), source == "oracle" ? "oracle" : "tracker", kf_frames.size(),
               camera.width, camera.height, held.size(), depth_loss.c_str());
   if (source != "oracle") std::printf("  tracker scale to ground truth: %.4f\n", align_scale);
+  if (fit_camera_frame)
+    std::printf("  camera frame fitted: the ground truth's is %.2f deg from the images'\n",
+                camera_offset.log().norm() * 180 / M_PI);
   std::printf("  keyframe pixels with depth: %.1f%%\n",
               100.0 * validDepthPixels(kf_depth) /
                   (double(camera.width) * camera.height * kf_depth.size()));
@@ -463,7 +476,8 @@ int run(int argc, char** argv) {
   // nearest in time.
   std::vector<Vec6> held_exposures;
   std::vector<SE3> held_poses_following;
-  for (const EvalFrame& f : held) {
+  for (size_t i = 0; i < held.size(); ++i) {
+    const EvalFrame& f = held[i];
     size_t b = 0;
     while (b + 1 < kf_frames.size() && kf_frames[b].utime < f.utime) ++b;
     const size_t a = b > 0 && kf_frames[b].utime > f.utime ? b - 1 : b;
@@ -472,7 +486,7 @@ int run(int argc, char** argv) {
                                                  kf_exposures[b]));
     const size_t nearest =
         std::abs(kf_frames[a].utime - f.utime) <= std::abs(kf_frames[b].utime - f.utime) ? a : b;
-    held_poses_following.push_back(followRefinement(*kf_entries[nearest], f.T_world_cam));
+    held_poses_following.push_back(followRefinement(*kf_entries[nearest], held_poses[i]));
   }
   DepthError kf_depth_err, held_depth_err;
   const double psnr_kf =

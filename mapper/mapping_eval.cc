@@ -10,6 +10,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "common/alignment.h"
+#include "common/evaluation.h"
 #include "common/exr_io.h"
 
 namespace radslam {
@@ -152,7 +153,7 @@ TrackerRun readTrackerRun(const std::string& dir) {
 }
 
 Sim3 alignToGroundTruth(const Trajectory& estimate, const Trajectory& ground_truth, double scale,
-                        double max_gap_s) {
+                        double max_gap_s, SO3* camera_offset) {
   std::vector<Vec3> src, dst;
   std::vector<SO3> src_r, dst_r;
   for (const StampedPose& p : estimate) {
@@ -165,7 +166,14 @@ Sim3 alignToGroundTruth(const Trajectory& estimate, const Trajectory& ground_tru
   }
   if (src.size() < 3)
     throw std::invalid_argument("alignToGroundTruth: fewer than 3 poses have ground truth");
-  const SO3 R = alignRotationOnly(src_r, dst_r);
+  SO3 R;
+  if (camera_offset) {
+    const RotationAlignment fit = alignRotationsWithCameraOffset(src_r, dst_r);
+    R = fit.world;
+    *camera_offset = fit.camera;
+  } else {
+    R = alignRotationOnly(src_r, dst_r);
+  }
   if (!(scale > 0)) scale = alignUmeyama(src, dst, true).scale();
   Vec3 mean_src = Vec3::Zero(), mean_dst = Vec3::Zero();
   for (size_t i = 0; i < src.size(); ++i) {

@@ -71,7 +71,10 @@ TrackerRun readTrackerRun(const std::string& dir);
 /// Rotation from the orientations (well conditioned even when the camera barely translates),
 /// scale `scale` when > 0 (e.g. a depth ratio) else from Umeyama on the positions, and the
 /// translation that matches the centroids. Needs 3 matched poses (std::invalid_argument).
+/// With camera_offset, the rotation is fitted together with a constant rotation on the camera
+/// side (alignRotationsWithCameraOffset), returned there: the estimate's camera at a ground-truth
+/// pose T_gt is then T_gt * camera_offset^-1.
 Sim3 alignToGroundTruth(const Trajectory& estimate, const Trajectory& ground_truth,
-                        double scale = 0, double max_gap_s = 0.05);
+                        double scale = 0, double max_gap_s = 0.05, SO3* camera_offset = nullptr);
 
 }  // namespace radslam

@@ -141,6 +141,16 @@ TEST(EvaluateTrajectory, CameraFrameFitRecoversAConstantCameraOffset) {
   const TrajectoryErrors n = evaluateTrajectory(noisy, gt, "se3");
   EXPECT_NEAR(n.rot_rmse_camera_fit_deg, 0.1 * std::sqrt(3.0), 0.03);
   EXPECT_NEAR(n.camera_offset_deg, 1.5, 0.05);
+  // The fit itself: gt = R_est_gt^-1 est offset^-1.
+  std::vector<SO3> est_r, gt_r;
+  for (size_t k = 0; k < gt.size(); ++k) {
+    est_r.push_back(exact[k].T_world_cam.so3());
+    gt_r.push_back(gt[k].T_world_cam.so3());
+  }
+  const RotationAlignment fit = alignRotationsWithCameraOffset(est_r, gt_r);
+  EXPECT_LT((fit.world * R_est_gt).log().norm(), 1e-8);
+  EXPECT_LT((fit.camera * offset).log().norm(), 1e-8);
+  EXPECT_THROW(alignRotationsWithCameraOffset({SO3()}, {SO3()}), std::invalid_argument);
 }
 
 TEST(EvaluateTrajectory, ConstantDriftGivesExactRpe) {
