@@ -39,7 +39,7 @@ double rotationRms(const std::vector<SO3>& src, const std::vector<SO3>& dst, con
 // Scores ground truth rotated by the fitted camera offset alone, as rot_rmse_deg would.
 void cameraOffsetFit(const std::vector<SO3>& est, const std::vector<SO3>& gt,
                      TrajectoryErrors* errors) {
-  const RotationAlignment fit = alignRotationsWithCameraOffset(est, gt);
+  const WorldAndCameraRotation fit = alignRotationsWithCameraOffset(est, gt);
   errors->rot_rmse_camera_fit_deg = rotationRms(est, gt, fit.world, fit.camera) * kRadToDeg;
   errors->camera_offset_deg = fit.camera.log().norm() * kRadToDeg;
   std::vector<SO3> rotated(gt.size());
@@ -52,8 +52,8 @@ void cameraOffsetFit(const std::vector<SO3>& est, const std::vector<SO3>& gt,
 
 // Alternating the two rotation-only alignments for a start, then Gauss-Newton on both
 // (r_i = log(R_gt_i^-1 A R_est_i X), A <- Exp(a) A, X <- X Exp(x)).
-RotationAlignment alignRotationsWithCameraOffset(const std::vector<SO3>& est,
-                                                 const std::vector<SO3>& gt) {
+WorldAndCameraRotation alignRotationsWithCameraOffset(const std::vector<SO3>& est,
+                                                      const std::vector<SO3>& gt) {
   if (est.size() != gt.size() || est.size() < 2)
     throw std::invalid_argument(
         "alignRotationsWithCameraOffset: needs at least 2 pairs of rotations");

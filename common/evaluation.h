@@ -48,11 +48,11 @@ TrajectoryErrors evaluateTrajectory(const Trajectory& estimate, const Trajectory
 /// geodesic angles): the alignment of the two worlds and a constant rotation on the camera
 /// side, by which the ground truth's camera frame is rotated from the images' (a hand-eye
 /// calibration error). Needs at least 2 pairs of the same count (std::invalid_argument).
-struct RotationAlignment {
+struct WorldAndCameraRotation {
   SO3 world, camera;
 };
-RotationAlignment alignRotationsWithCameraOffset(const std::vector<SO3>& est,
-                                                 const std::vector<SO3>& gt);
+WorldAndCameraRotation alignRotationsWithCameraOffset(const std::vector<SO3>& est,
+                                                      const std::vector<SO3>& gt);
 
 /// Reads a trajectory file in `format` "tum" or "kitti". For KITTI, times_path
 /// (optional) is a file of one time stamp (s) per line, e.g. KITTI's times.txt;

@@ -168,7 +168,7 @@ Sim3 alignToGroundTruth(const Trajectory& estimate, const Trajectory& ground_tru
     throw std::invalid_argument("alignToGroundTruth: fewer than 3 poses have ground truth");
   SO3 R;
   if (camera_offset) {
-    const RotationAlignment fit = alignRotationsWithCameraOffset(src_r, dst_r);
+    const WorldAndCameraRotation fit = alignRotationsWithCameraOffset(src_r, dst_r);
     R = fit.world;
     *camera_offset = fit.camera;
   } else {

@@ -147,7 +147,7 @@ TEST(EvaluateTrajectory, CameraFrameFitRecoversAConstantCameraOffset) {
     est_r.push_back(exact[k].T_world_cam.so3());
     gt_r.push_back(gt[k].T_world_cam.so3());
   }
-  const RotationAlignment fit = alignRotationsWithCameraOffset(est_r, gt_r);
+  const WorldAndCameraRotation fit = alignRotationsWithCameraOffset(est_r, gt_r);
   EXPECT_LT((fit.world * R_est_gt).log().norm(), 1e-8);
   EXPECT_LT((fit.camera * offset).log().norm(), 1e-8);
   EXPECT_THROW(alignRotationsWithCameraOffset({SO3()}, {SO3()}), std::invalid_argument);
