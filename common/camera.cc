@@ -169,8 +169,19 @@ Undistorter::Undistorter(const CameraModel& source, int target_width, int target
     makeDistortedMaps(target_width, target_height);
   }
   if (source.readout_s > 0) {
-    // A camera turning at 3 rad/s over half a 40 ms readout carries rays about 0.06 f.
-    source_pad_ = static_cast<int>(std::ceil(0.06 * std::max(target_.fx, 1.0)));
+    // A camera turning at 3 rad/s over half a 40 ms readout carries rays about 0.06 f (at most
+    // half the image: beyond, no real camera's maps need it).
+    source_pad_ = static_cast<int>(std::ceil(
+        std::min(0.06 * std::max(target_.fx, 1.0), 0.5 * std::max(source.width, source.height))));
+    // Bounds the maps below (two floats per padded pixel, about 256 MB at the limit).
+    constexpr double kMaxPaddedPixels = 32e6;
+    const double padded_pixels =
+        (source.width + 2.0 * source_pad_) * (source.height + 2.0 * source_pad_);
+    if (padded_pixels > kMaxPaddedPixels)
+      throw std::invalid_argument("Undistorter: a rolling-shutter camera of " +
+                                  sizeString(source.width, source.height) + " needs maps of " +
+                                  std::to_string(static_cast<long long>(padded_pixels)) +
+                                  " pixels, more than the 32M supported");
     cv::Mat map_x, map_y;
     sourcePixels(source_pad_, &map_x, &map_y);
     cv::merge(std::vector<cv::Mat>{map_x, map_y}, padded_source_);

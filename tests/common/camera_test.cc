@@ -419,5 +419,17 @@ TEST(Undistorter, RejectsImagesOfTheWrongSize) {
   }
 }
 
+// A rolling-shutter camera whose padded maps would not fit in memory (an implausible focal
+// length or size, e.g. from a damaged checkpoint) is refused before anything is allocated.
+TEST(Undistorter, RefusesRollingShutterMapsBeyondTheLimit) {
+  CameraModel camera = pinhole();
+  camera.readout_s = 0.03;
+  EXPECT_NO_THROW(Undistorter(camera, 320, 240));
+  camera.fx = camera.fy = 1e12;
+  EXPECT_NO_THROW(Undistorter(camera, 320, 240));  // the pad stops at half the image
+  camera.width = camera.height = 8000;
+  EXPECT_THROW(Undistorter(camera, 320, 240), std::invalid_argument);
+}
+
 }  // namespace
 }  // namespace radslam
