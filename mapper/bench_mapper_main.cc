@@ -171,14 +171,15 @@ void printDepthBins(const char* what, const DepthError& e) {
   std::printf("\n");
 }
 
-// Is an input depth's variance informative? Its errors against the sensor by thirds of the
-// relative sigma, and the share within 2 sigma (the sensor's own noise not counted).
+// Is an input depth's variance informative? Its errors against the sensor (as seen at the middle
+// row, like the input) by thirds of the relative sigma, and the share within 2 sigma (the
+// sensor's own noise not counted).
 void printVarianceRanking(const std::vector<EvalFrame>& frames, const std::vector<cv::Mat>& depth,
                           const std::vector<cv::Mat>& var) {
   std::vector<std::pair<float, float>> rel_sigma_error;
   int64_t inside = 0;
   for (size_t k = 0; k < frames.size(); ++k) {
-    const cv::Mat& ref = frames[k].depth;
+    const cv::Mat& ref = frames[k].training_depth;
     if (ref.empty()) continue;
     for (int y = 0; y < ref.rows; ++y)
       for (int x = 0; x < ref.cols; ++x) {
@@ -513,10 +514,11 @@ int run(int argc, char** argv) {
               held_depth_err.l1(), 100 * held_depth_err.coverage());
   printDepthBins("keyframe", kf_depth_err);
   if (source != "oracle") {
-    DepthError input_err;  // the keyframe depth the mapper was given
+    // The keyframe depth the mapper was given, against the sensor's as seen at the middle row.
+    DepthError input_err;
     for (size_t k = 0; k < kf_frames.size(); ++k)
-      if (!kf_frames[k].depth.empty())
-        input_err += depthError(kf_input_depth[k], kf_frames[k].depth);
+      if (!kf_frames[k].training_depth.empty())
+        input_err += depthError(kf_input_depth[k], kf_frames[k].training_depth);
     std::printf("  input keyframe depth: L1 %.4f m (coverage %.1f%%)\n", input_err.l1(),
                 100 * input_err.coverage());
     printDepthBins("input", input_err);
