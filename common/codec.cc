@@ -157,12 +157,16 @@ void toLcm(const Frame& msg, frame_t* out) {
   if (!std::isfinite(msg.depth_wire_scale) || msg.depth_wire_scale < 0) {
     throw std::invalid_argument("Frame.depth_wire_scale must be finite and >= 0");
   }
+  if (!(std::abs(msg.depth_time_offset_s) < 1)) {
+    throw std::invalid_argument("Frame.depth_time_offset_s must be below 1 s in magnitude");
+  }
   headerToLcm(msg.header, &out->header);
   out->frame_index = msg.frame_index;
   cameraToLcm(msg.camera, &out->camera);
   imageToLcm(msg.color, msg.color_compression, 0.0f, "Frame.color", &out->color);
   imageToLcm(msg.right, msg.color_compression, 0.0f, "Frame.right", &out->right);
   out->baseline_m = msg.baseline_m;
+  out->depth_time_offset_s = msg.depth_time_offset_s;
   const float depth_scale = static_cast<float>(msg.depth_wire_scale);
   if (msg.depth.empty()) {
     imageToLcm(cv::Mat(), WireCompression::kRaw, 0.0f, "Frame.depth", &out->depth);
@@ -194,6 +198,9 @@ bool fromLcm(const frame_t& in, Frame* out, std::string* error) {
   }
   if (!std::isfinite(in.baseline_m)) return fail(error, "baseline_m is not finite");
   f.baseline_m = in.baseline_m;
+  if (!(std::abs(in.depth_time_offset_s) < 1))
+    return fail(error, "depth_time_offset_s is not below 1 s in magnitude");
+  f.depth_time_offset_s = in.depth_time_offset_s;
   cv::Mat depth;
   if (!imageFromLcm(in.depth, "depth", kAllowUint16 | kAllowFloat32, &depth, error)) return false;
   if (depth.type() == CV_16UC1) {

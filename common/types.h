@@ -48,7 +48,7 @@ struct Frame {
   double baseline_m = 0;
   cv::Mat depth;
   // s, the depth image's time stamp minus the colour image's (TUM's Kinect: up to 20 ms, either
-  // way). Set by the dataset readers, for evaluation; not carried on the bus.
+  // way); below 1 s in magnitude.
   double depth_time_offset_s = 0;
   cv::Mat instance;
   cv::Mat class_id;

@@ -141,4 +141,36 @@ UpsampledDepth upsampleDepth(const cv::Mat& grid_inv_depth, const cv::Mat& grid_
   return out;
 }
 
+void addSensorDetail(const cv::Mat& sensor_inv_depth, const cv::Mat& sensor_inv_depth_var,
+                     const cv::Mat& correction, UpsampledDepth* estimate) {
+  const cv::Size size = estimate->inv_depth.size();
+  const cv::Mat* images[] = {&sensor_inv_depth,        &sensor_inv_depth_var, &correction,
+                             &estimate->inv_depth_var, &estimate->depth,      &estimate->depth_var};
+  for (const cv::Mat* m : images) {
+    if (m->type() != CV_32FC1 || m->size() != size) {
+      throw std::invalid_argument(
+          "addSensorDetail: sensor and estimate images must be CV_32FC1 of one size");
+    }
+  }
+  for (int y = 0; y < size.height; ++y) {
+    const float* s = sensor_inv_depth.ptr<float>(y);
+    const float* s_var = sensor_inv_depth_var.ptr<float>(y);
+    const float* c = correction.ptr<float>(y);
+    float* d = estimate->inv_depth.ptr<float>(y);
+    float* var = estimate->inv_depth_var.ptr<float>(y);
+    float* z = estimate->depth.ptr<float>(y);
+    float* z_var = estimate->depth_var.ptr<float>(y);
+    for (int x = 0; x < size.width; ++x) {
+      if (!(s[x] > 0) || !std::isfinite(s[x]) || !std::isfinite(s_var[x])) continue;
+      const bool known = d[x] > 0 && std::isfinite(var[x]);
+      const float detailed = s[x] + (std::isfinite(c[x]) ? c[x] : 0.0f);
+      if (!(detailed > 0)) continue;
+      d[x] = detailed;
+      var[x] = (known ? var[x] : 0.0f) + s_var[x];
+      z[x] = 1.0f / detailed;
+      z_var[x] = var[x] * (z[x] * z[x]) * (z[x] * z[x]);
+    }
+  }
+}
+
 }  // namespace radslam

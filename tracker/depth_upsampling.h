@@ -44,4 +44,16 @@ UpsampledDepth upsampleDepth(const cv::Mat& grid_inv_depth, const cv::Mat& grid_
                              const cv::Mat& guide, int cell,
                              const DepthUpsamplingOptions& options = {});
 
+/// RGB-D: the sensor's own resolution put back into an upsampled BA estimate. The BA grid
+/// blurs every depth edge over a cell; the sensor measured each pixel. Where sensor_inv_depth
+/// (CV_32FC1 output size, 1/m; NaN = none) is known, the output inverse depth is that value plus
+/// `correction` (CV_32FC1 output size, 1/m): BA's correction of the sensor, its grid estimate
+/// minus the sensor's where the sensor measured the cell, upsampled like the estimate (smooth,
+/// keeps edges; 0 where unknown). Its variance is the estimate's plus sensor_inv_depth_var (the
+/// pixel's own noise, which the cell averaged away). Elsewhere, and where the result is not
+/// positive, the estimate stays. Depth and its variance follow as in upsampleDepth. Throws
+/// std::invalid_argument on mismatched sizes or types.
+void addSensorDetail(const cv::Mat& sensor_inv_depth, const cv::Mat& sensor_inv_depth_var,
+                     const cv::Mat& correction, UpsampledDepth* estimate);
+
 }  // namespace radslam

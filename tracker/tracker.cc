@@ -272,11 +272,12 @@ SE3 Tracker::Impl::predictPose(int64_t utime) const {
 }
 
 PreparedImage Tracker::Impl::prepareFrame(const ImagePreparer& preparer, const Frame& frame) {
-  if (preparer.readout() <= 0) return preparer.prepare(frame, false);
-  // A first grey image turned by the motion model's angular velocity; the rotation from the
-  // previous frame's image to it measures this frame interval's, which turns the image kept.
   Vec3 omega = angularVelocity();
   const CameraModel& working = preparer.geometry().working;
+  if (preparer.readout() <= 0)
+    return turnDepth(preparer.prepare(frame, false), frame, working, omega);
+  // A first grey image turned by the motion model's angular velocity; the rotation from the
+  // previous frame's image to it measures this frame interval's, which turns the image kept.
   const double dt_s = 1e-6 * static_cast<double>(frame.header.utime - previous_frame_utime);
   if (!previous_frame_pyramid.levels.empty() && dt_s > 0 && dt_s < kMaxRotationGapS) {
     const ImagePyramid first = coarsePyramid(preparer.prepareGrey(frame, omega), working,
@@ -288,10 +289,19 @@ PreparedImage Tracker::Impl::prepareFrame(const ImagePreparer& preparer, const F
     if (rotation.ok && first_frame && graph.size() == 1) undistortFirstKeyframe(omega);
   }
   first_frame.reset();
-  PreparedImage image = preparer.prepare(frame, false, omega);
+  PreparedImage image = turnDepth(preparer.prepare(frame, false, omega), frame, working, omega);
   previous_frame_pyramid =
       coarsePyramid(image.grey, working, kRotationLevels[0], kRotationLevels[1]);
   previous_frame_utime = frame.header.utime;
+  return image;
+}
+
+PreparedImage Tracker::Impl::turnDepth(PreparedImage image, const Frame& frame,
+                                       const CameraModel& working, const Vec3& omega) const {
+  // The depth image's exposure after the colour image's (s): R_colour_depth = Exp(dt omega).
+  const double dt_s = frame.depth_time_offset_s - p.depth_delay_s;
+  if (mode == TrackerMode::kRgbd && !image.depth.empty() && dt_s != 0 && !omega.isZero())
+    image.depth = rotateDepth(image.depth, working, SO3::exp(dt_s * omega).matrix());
   return image;
 }
 
@@ -316,7 +326,8 @@ KeyframeData Tracker::Impl::newKeyframeData(const Frame& frame, const PreparedIm
   kf.structure = cellStructureTensor(kf.gradients, g.cell);
   kf.right_grey = image.right_grey;
   kf.moving = moving;
-  if (segmenter && mode != TrackerMode::kMono) kf.depth = frameDepth(image);
+  if (mode == TrackerMode::kRgbd || (segmenter && mode != TrackerMode::kMono))
+    kf.depth = frameDepth(image);
   kf.ba.T_world_cam = T_world_cam;
   if (mode == TrackerMode::kRgbd) {
     const cv::Mat z = sensorDepthToGrid(image.depth, g.cell, p.depth_min_cell_fraction,
@@ -336,7 +347,9 @@ void Tracker::Impl::undistortFirstKeyframe(const Vec3& omega) {
   // What makeKeyframe made of the first frame, from its images turned by omega; its pose and
   // (monocular) constant inverse depth stay.
   KeyframeData& k = graph.keyframe(0);
-  KeyframeData fresh = newKeyframeData(*first_frame, preparer->prepare(*first_frame, false, omega),
+  KeyframeData fresh = newKeyframeData(*first_frame,
+                                       turnDepth(preparer->prepare(*first_frame, false, omega),
+                                                 *first_frame, preparer->geometry().working, omega),
                                        k.ba.T_world_cam);
   k.color = fresh.color;
   k.grey = fresh.grey;
@@ -1037,7 +1050,20 @@ Keyframe Tracker::Impl::keyframeMessage(int id) {
     var = cv::Mat(k.ba.inv_depth.size(), CV_32FC1,
                   cv::Scalar(std::numeric_limits<float>::infinity()));
   }
-  const UpsampledDepth up = upsampleDepth(k.ba.inv_depth, var, k.grey, g.cell, upsampling);
+  UpsampledDepth up = upsampleDepth(k.ba.inv_depth, var, k.grey, g.cell, upsampling);
+  if (mode == TrackerMode::kRgbd && !k.depth.empty() && !k.sensor_inv_depth.empty()) {
+    // The sensor's pixels within its range, with their own noise, moved by BA's correction.
+    cv::Mat z(k.depth.size(), CV_32FC1, cv::Scalar(0)), sensor_inv, sensor_var;
+    k.depth.copyTo(z, (k.depth >= p.depth_min_m) & (k.depth <= p.depth_max_m));
+    depthPrior(z, p.depth_sigma_a, p.depth_sigma_b, p.depth_sigma_z0, &sensor_inv, &sensor_var);
+    // BA's correction where the sensor measured the cell (NaN, with zero variance, elsewhere).
+    const cv::Mat correction_grid = k.ba.inv_depth - k.sensor_inv_depth;
+    addSensorDetail(
+        sensor_inv, sensor_var,
+        upsampleDepth(correction_grid, k.sensor_inv_depth_var, k.grey, g.cell, upsampling)
+            .inv_depth,
+        &up);
+  }
   msg.inv_depth = up.inv_depth;
   msg.inv_depth_var = up.inv_depth_var;
   msg.depth = up.depth;

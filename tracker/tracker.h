@@ -60,6 +60,11 @@ struct TrackerParams {
   // camera's own (CameraModel::readout_s), 0: global shutter. Frames are resampled as seen at
   // their middle row (tracker/frontend.h ImagePreparer, tracker/rotation_alignment.h).
   double rolling_shutter_readout_s = -1;
+  // RGB-D: the depth image is exposed at its stamp minus this, relative to the colour image's
+  // middle row at its own stamp (s; TUM fr1/rpy: 0.015, docs/mapper.md "Sensor clocks"). The
+  // depth is turned by the camera's rotation between the two (its angular velocity over the
+  // frame's depth_time_offset_s minus this), so that it is seen from the colour image's pose.
+  double depth_delay_s = 0;
   std::string flow_preset = "fast";  // DIS preset: ultrafast | fast | medium
   int flow_finest_scale = 1;         // DIS finest pyramid level (2 biased the flow at 384 px width)
   int flow_variational_iterations = 0;

@@ -72,6 +72,11 @@ struct Tracker::Impl {
   Vec3 angularVelocity() const;
   /// The frame at working resolution; with a rolling shutter, as seen at its middle row.
   PreparedImage prepareFrame(const ImagePreparer& preparer, const Frame& frame);
+  /// The frame's prepared depth seen from the colour image's pose: turned by the rotation at
+  /// angular velocity omega (rad/s, camera frame) between the two exposures (the frame's
+  /// depth_time_offset_s minus depth_delay_s); working: the prepared images' camera.
+  PreparedImage turnDepth(PreparedImage image, const Frame& frame, const CameraModel& working,
+                          const Vec3& omega) const;
   SE3 framePose(const FrameRecord& r) const {
     return graph.keyframe(r.ref_kf).ba.T_world_cam * r.T_kf_frame;
   }

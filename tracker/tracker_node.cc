@@ -58,6 +58,7 @@ void validateTrackerParams(const TrackerParams& p) {
   parseTrackerMode(p.mode);
   check(p.opencv_threads >= 0, "opencv_threads must be >= 0");
   check(p.working_pixels >= 0, "working_pixels must be >= 0 (0 = input size)");
+  check(std::abs(p.depth_delay_s) < 1, "depth_delay_s must be within 1 s");
   check(p.rolling_shutter_readout_s < 1,
         "rolling_shutter_readout_s must be below 1 s (negative: the camera's own)");
   check(p.grid_cell >= 2 && p.grid_cell <= 32, "grid_cell must be in [2, 32]");
@@ -157,6 +158,7 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("working_pixels", &p.working_pixels);
   r.get("grid_cell", &p.grid_cell);
   r.get("rolling_shutter_readout_s", &p.rolling_shutter_readout_s);
+  r.get("depth_delay_s", &p.depth_delay_s);
   r.get("flow_preset", &p.flow_preset);
   r.get("flow_finest_scale", &p.flow_finest_scale);
   r.get("flow_variational_iterations", &p.flow_variational_iterations);

@@ -186,6 +186,9 @@ TEST(Codec, EncodeRejectsUnsupportedContent) {
   } catch (const std::invalid_argument& e) {
     EXPECT_NE(std::string(e.what()).find("Frame.depth is 10x10"), std::string::npos) << e.what();
   }
+  f = sampleFrame();
+  f.depth_time_offset_s = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THROW(encode(f), std::invalid_argument);
   Keyframe k = sampleKeyframe();
   k.inv_depth.convertTo(k.inv_depth, CV_64F);
   EXPECT_THROW(encode(k), std::invalid_argument);
@@ -339,7 +342,8 @@ TEST(Codec, ImageValidation) {
   EXPECT_TRUE(sameImage(out.color, grey));
 }
 
-TEST(Codec, FrameImagesMustAgreeInSize) {
+// A 4x2 frame_t with a grey colour image and a depth image of depth_width x 2.
+std::vector<uint8_t> frameBytes(int depth_width, double depth_time_offset_s) {
   LcmWriter w;
   w.raw(fingerprintOf<Frame>());
   w.i64(1);
@@ -352,15 +356,33 @@ TEST(Codec, FrameImagesMustAgreeInSize) {
   w.i8(0);
   for (int i = 0; i < 4; ++i) w.f64(100.0);
   w.i32(0);
-  w.f64(0.0);                                                           // readout_s
-  w.image(4, 2, kGrey8, kRaw, 0.0f, 8, std::vector<uint8_t>(8, 1));     // color
-  w.emptyImage();                                                       // right
-  w.f64(0.0);                                                           // baseline
-  w.image(2, 2, kUint16, kRaw, 0.001f, 8, std::vector<uint8_t>(8, 1));  // depth: wrong size
+  w.f64(0.0);                                                        // readout_s
+  w.image(4, 2, kGrey8, kRaw, 0.0f, 8, std::vector<uint8_t>(8, 1));  // color
+  w.emptyImage();                                                    // right
+  w.f64(0.0);                                                        // baseline
+  w.image(depth_width, 2, kUint16, kRaw, 0.001f, 4 * depth_width,
+          std::vector<uint8_t>(4 * depth_width, 1));  // depth
+  w.f64(depth_time_offset_s);
   w.emptyImage();
   w.emptyImage();
-  std::string error = decodeError<Frame>(w.bytes);
+  return w.bytes;
+}
+
+TEST(Codec, FrameImagesMustAgreeInSize) {
+  Frame frame;
+  std::string error;
+  const std::vector<uint8_t> good = frameBytes(4, -0.012);
+  ASSERT_TRUE(decode(good.data(), good.size(), &frame, &error)) << error;
+  EXPECT_EQ(frame.depth_time_offset_s, -0.012);
+  error = decodeError<Frame>(frameBytes(2, 0));
   EXPECT_NE(error.find("depth is 2x2 but color is 4x2"), std::string::npos) << error;
+}
+
+TEST(Codec, FrameDepthTimeOffsetIsChecked) {
+  for (double offset : {1.5, -2.0, std::numeric_limits<double>::quiet_NaN()}) {
+    const std::string error = decodeError<Frame>(frameBytes(4, offset));
+    EXPECT_NE(error.find("depth_time_offset_s"), std::string::npos) << error;
+  }
 }
 
 }  // namespace

@@ -102,6 +102,7 @@ inline Frame sampleFrame(WireCompression compression = WireCompression::kRaw) {
   f.color = colorImage(w, h);
   f.right = randomImage(w, h, CV_8UC3, 2);
   f.baseline_m = 0.537;
+  f.depth_time_offset_s = -0.012;
   f.depth = randomImage(w, h, CV_32FC1, 3);
   f.instance = randomImage(w, h, CV_16UC1, 4);
   f.class_id = randomImage(w, h, CV_16UC1, 5);
@@ -275,6 +276,7 @@ inline void expectFrameEq(const Frame& a, const Frame& b) {
   EXPECT_TRUE(sameImage(a.right, b.right));
   EXPECT_EQ(a.baseline_m, b.baseline_m);
   EXPECT_TRUE(sameImage(a.depth, b.depth));
+  EXPECT_EQ(a.depth_time_offset_s, b.depth_time_offset_s);
   EXPECT_TRUE(sameImage(a.instance, b.instance));
   EXPECT_TRUE(sameImage(a.class_id, b.class_id));
   EXPECT_EQ(a.color_compression, b.color_compression);

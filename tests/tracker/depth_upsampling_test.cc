@@ -110,5 +110,48 @@ TEST(DepthUpsampling, RejectsMismatchedInput) {
   EXPECT_THROW(upsampleDepth(d, var, cv::Mat(32, 32, CV_8UC3), kCell), std::invalid_argument);
 }
 
+TEST(DepthUpsampling, SensorDetailKeepsAnEdgeInsideACellAndTheCorrectionOfBa) {
+  // A depth edge at x = 20, in the middle of grid column 2, that the image does not show: the
+  // grid (cell medians) blurs it, the sensor's pixels have it. BA moved every cell by +0.05 1/m
+  // from the sensor's grid.
+  const int gw = 6, gh = 3, edge = 20;
+  cv::Mat sensor(gh * kCell, gw * kCell, CV_32FC1);
+  const cv::Mat guide(sensor.size(), CV_8UC1, cv::Scalar(128));
+  for (int y = 0; y < sensor.rows; ++y) {
+    for (int x = 0; x < sensor.cols; ++x) sensor.at<float>(y, x) = x < edge ? 1.0f : 0.25f;
+  }
+  sensor.at<float>(5, 30) = std::numeric_limits<float>::quiet_NaN();  // no measurement here
+  cv::Mat sensor_grid(gh, gw, CV_32FC1);
+  for (int v = 0; v < gh; ++v) {
+    for (int u = 0; u < gw; ++u) sensor_grid.at<float>(v, u) = u * kCell + 4 < edge ? 1.0f : 0.25f;
+  }
+  const cv::Mat grid_var(gh, gw, CV_32FC1, cv::Scalar(1e-3f));
+  const cv::Mat pixel_var(sensor.size(), CV_32FC1, cv::Scalar(4e-4f));
+  const cv::Mat estimate_grid = sensor_grid + 0.05f;
+  UpsampledDepth out = upsampleDepth(estimate_grid, grid_var, guide, kCell);
+  const UpsampledDepth before{out.inv_depth.clone(), out.inv_depth_var.clone(), out.depth.clone(),
+                              out.depth_var.clone()};
+  const cv::Mat correction =
+      upsampleDepth(estimate_grid - sensor_grid, grid_var, guide, kCell).inv_depth;
+  addSensorDetail(sensor, pixel_var, correction, &out);
+  for (int y = 0; y < sensor.rows; ++y) {
+    for (int x = 0; x < sensor.cols; ++x) {
+      if (y == 5 && x == 30) continue;
+      const float expected = sensor.at<float>(y, x) + 0.05f;
+      ASSERT_NEAR(out.inv_depth.at<float>(y, x), expected, 1e-5) << x << ", " << y;
+      ASSERT_NEAR(out.depth.at<float>(y, x), 1.0f / expected, 1e-4);
+      ASSERT_NEAR(out.inv_depth_var.at<float>(y, x), before.inv_depth_var.at<float>(y, x) + 4e-4f,
+                  1e-7);
+    }
+  }
+  // The grid alone put the edge's near side at the far depth over part of the cell.
+  EXPECT_GT(std::abs(before.inv_depth.at<float>(8, edge - 1) - 1.05f), 0.2f);
+  // Where the sensor has nothing the estimate stays.
+  EXPECT_EQ(out.inv_depth.at<float>(5, 30), before.inv_depth.at<float>(5, 30));
+  EXPECT_EQ(out.depth_var.at<float>(5, 30), before.depth_var.at<float>(5, 30));
+  EXPECT_THROW(addSensorDetail(sensor, cv::Mat(3, 3, CV_32FC1), correction, &out),
+               std::invalid_argument);
+}
+
 }  // namespace
 }  // namespace radslam

@@ -267,5 +267,55 @@ TEST(Tracker, TracksARollingShutterSequenceBetterWithItsReadout) {
   EXPECT_LT(with_readout, 0.7 * as_global) << with_readout << " vs " << as_global << " deg";
 }
 
+// A depth image exposed before its colour image (depth_delay_s): turned by the camera's rotation
+// meanwhile, the keyframes' depth lines up with their colour images again.
+TEST(Tracker, DepthDelayTurnsTheDepthToTheColourImagesPose) {
+  constexpr int kFrames = 12;
+  constexpr double kDelayS = 0.04;
+  const SyntheticScene scene = fastRoom(kFrames + 2, 0);
+  std::vector<Frame> frames;
+  for (int i = 1; i <= kFrames; ++i) {
+    // The camera kDelayS earlier, at its angular velocity (the few mm it moves are left out).
+    const SE3 T_world_cam = scene.cameraPose(i);
+    const Vec3 omega =
+        (scene.cameraPose(i - 1).so3().inverse() * scene.cameraPose(i + 1).so3()).log() *
+        scene.fps() / 2;
+    const SE3 T_world_depth(T_world_cam.so3() * SO3::exp(-kDelayS * omega),
+                            T_world_cam.translation());
+    Frame f = scene.frame(i);
+    f.depth = scene.render(T_world_depth, scene.camera(), i).depth;
+    frames.push_back(f);
+  }
+  auto keyframe_depth_error = [&](double delay_s) {
+    TrackerParams params;
+    params.mode = "rgbd";
+    params.depth_delay_s = delay_s;
+    Tracker tracker(params);
+    for (const Frame& f : frames) tracker.process(f);
+    double sum = 0;
+    int64_t count = 0;
+    for (const Keyframe& k : tracker.republishKeyframes({})) {
+      if (k.keyframe_id == 0) continue;  // made before any angular velocity was known
+      const Frame truth = scene.frame(static_cast<int>(k.frame_index));
+      const ImagePreparer plain(truth.camera, k.camera.width, 8, 0);
+      const cv::Mat true_depth = plain.prepare(truth, false).depth;
+      for (int y = 0; y < true_depth.rows; ++y)
+        for (int x = 0; x < true_depth.cols; ++x) {
+          const float a = k.depth.at<float>(y, x), b = true_depth.at<float>(y, x);
+          if (a > 0 && b > 0) {
+            sum += std::abs(a - b);
+            ++count;
+          }
+        }
+    }
+    EXPECT_GT(count, 10000);
+    return sum / std::max<int64_t>(1, count);
+  };
+  const double turned = keyframe_depth_error(kDelayS);
+  const double as_is = keyframe_depth_error(0);
+  std::printf("keyframe depth error: %.4f m turned, %.4f m as exposed\n", turned, as_is);
+  EXPECT_LT(turned, 0.6 * as_is) << turned << " vs " << as_is << " m";
+}
+
 }  // namespace
 }  // namespace radslam
