@@ -178,6 +178,11 @@ void validateFrame(const Frame& frame) {
                                   ", expected 32FC1 " + sizeText(cam.width, cam.height));
     }
     if (!finiteAll(frame.depth)) throw std::invalid_argument(where + "depth image has NaN or inf");
+    if (!(std::abs(frame.depth_time_offset_s) < 1)) {
+      throw std::invalid_argument(where + "depth time offset " +
+                                  std::to_string(frame.depth_time_offset_s) +
+                                  " s (must be below 1 s in magnitude)");
+    }
   }
   for (const auto& [mask, name] :
        {std::pair<const cv::Mat*, const char*>{&frame.instance, "instance"},

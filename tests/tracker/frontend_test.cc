@@ -97,6 +97,11 @@ TEST(ImagePreparer, RejectsBadFrames) {
   f.color = cv::Mat(48, 64, CV_8UC1, cv::Scalar(0));
   f.depth = cv::Mat(48, 64, CV_32FC1, cv::Scalar(std::numeric_limits<float>::quiet_NaN()));
   EXPECT_THROW(prep.prepare(f, false), std::invalid_argument);  // NaN depth
+  f.depth.setTo(1.0f);
+  EXPECT_NO_THROW(prep.prepare(f, false));
+  f.depth_time_offset_s = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THROW(prep.prepare(f, false), std::invalid_argument);  // depth taken at no known time
+  f.depth_time_offset_s = 0;
   f.depth.release();
   f.camera.fx = std::numeric_limits<double>::quiet_NaN();
   EXPECT_THROW(prep.prepare(f, false), std::invalid_argument);  // NaN intrinsics
