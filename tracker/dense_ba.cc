@@ -86,6 +86,9 @@ void validateDenseBaProblem(const DenseBaProblem& problem) {
       checkImage(kf.prior_inv_depth, CV_32FC1, cam, name + " prior_inv_depth");
       checkImage(kf.prior_inv_depth_var, CV_32FC1, cam, name + " prior_inv_depth_var");
     }
+    if (!(std::isfinite(kf.prior_level_var) && kf.prior_level_var >= 0)) {
+      throw std::invalid_argument("DenseBA: " + name + " prior_level_var must be finite and >= 0");
+    }
   }
   for (size_t n = 0; n < problem.edges.size(); ++n) {
     const DenseBaEdge& e = problem.edges[n];

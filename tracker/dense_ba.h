@@ -26,11 +26,13 @@
 //      r = target(p) - Pi(T_j_world T_world_i Pi^-1(p, d))            (pixels, grid of j)
 //    whitened by weight(p) = (1/sigma_u^2, 1/sigma_v^2) and passed through a Huber kernel on
 //    s = sqrt(r^T W r). Cost = sum of rho(s^2) (rho(s^2) = s^2 for inliers, no factor 1/2)
-//    + sum over priors of (d - mu)^2 / var.
+//    + sum over priors of (d - mu)^2 / var
+//    + per keyframe with a level prior, (mean over its prior pixels of (mu - d))^2 / level_var.
 //  - Points whose depth ratio z_j / z_i falls below min_depth_ratio are dropped for that
 //    linearisation (see dense_ba::reproject in tracker/dense_ba_kernel.h).
-//  - Normal equations [C E; E^T P][dxi; dd] = [v; w] with P diagonal; the poses are solved from
-//    the Schur complement H_T = C - E P^-1 E^T (ReducedCameraSolver), then dd = P^-1 (w - E^T dxi).
+//  - Normal equations [C E; E^T P][dxi; dd] = [v; w] with P per keyframe diagonal (plus a rank-one
+//    term for a level prior, inverted by Sherman-Morrison); the poses are solved from the Schur
+//    complement H_T = C - E P^-1 E^T (ReducedCameraSolver), then dd = P^-1 (w - E^T dxi).
 #pragma once
 
 #include <memory>
@@ -59,6 +61,12 @@ struct DenseBaKeyframe {
   /// have no prior. From sensor depth z with std sigma_z: mean 1/z, var = sigma_z^2 / z^4.
   cv::Mat prior_inv_depth;
   cv::Mat prior_inv_depth_var;
+  /// Optional prior on the keyframe's level (1/m^2; 0 = none): variance of the mean of
+  /// (prior_inv_depth - inv_depth) over the pixels with a prior. With a per-pixel prior of
+  /// variance var / s on N pixels and level variance var / ((1 - s) N), the level is held as
+  /// hard as by the per-pixel prior of variance var alone, the shape s times as hard
+  /// (monocular: the scale, tracker/tracker.h mono_prior_shape_weight).
+  double prior_level_var = 0;
 };
 
 /// Correspondences from keyframe i to keyframe j (or to i's own rigidly attached second camera).

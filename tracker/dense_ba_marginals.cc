@@ -1,6 +1,8 @@
 // Marginal covariances of dense BA at the current linearisation (DESIGN.md section 3):
 // Sigma_T = H_T^-1 and, per pixel, Sigma_d = 1/P + e^T H_T^-1 e / P^2 (the diagonal of the full
 // inverse; e = the pixel's column of E), by inverse blocks or by half solves ||L^-1 P e||^2.
+// With a level prior (P = D + alpha u u^T, P^-1 = D^-1 - beta q q^T, q = D^-1 u) the pixel's
+// column of E P^-1 is (e - beta u_p E q) / D_p and (P^-1)_pp = 1/D_p - beta q_p^2.
 #include <algorithm>
 #include <limits>
 
@@ -43,7 +45,16 @@ bool DenseBundleAdjuster::System::marginals(DenseBaMarginals* out) {
     const int m = static_cast<int>(out_edges_[k].size());
     const std::vector<int> vars = slotVars(k);
     const Eigen::VectorXd& P = lin.P[k];
-    const Eigen::MatrixXd& B = lin.B[k];
+    const double beta = levelBeta(lin, k);
+    // With a level prior the columns of B become those of B D P^-1 (pose slots of E P^-1 D).
+    Eigen::MatrixXd B_level;
+    Eigen::VectorXd q;
+    if (beta > 0) {
+      q = (level_u_[k].array() / P.array().max(1e-300)).matrix();
+      B_level = lin.B[k];
+      B_level.noalias() -= beta * (lin.B[k] * q) * level_u_[k].transpose();
+    }
+    const Eigen::MatrixXd& B = beta > 0 ? B_level : lin.B[k];
     // quad(p) = e_p^T H_T^-1 e_p.
     Eigen::VectorXd quad = Eigen::VectorXd::Zero(npix_);
     const bool any_free = std::any_of(vars.begin(), vars.end(), [](int v) { return v >= 0; });
@@ -85,7 +96,8 @@ bool DenseBundleAdjuster::System::marginals(DenseBaMarginals* out) {
     float* vz = var_z.ptr<float>();
     for (int p = 0; p < npix_; ++p) {
       if (P(p) > 0) {
-        const double s = 1.0 / P(p) + quad(p) / (P(p) * P(p));
+        double s = 1.0 / P(p) + quad(p) / (P(p) * P(p));
+        if (beta > 0) s -= beta * q(p) * q(p);
         const double d = depths_[k](p);
         vd[p] = static_cast<float>(s);
         vz[p] = static_cast<float>(s / (d * d * d * d));

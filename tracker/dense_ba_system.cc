@@ -44,6 +44,8 @@ void DenseBundleAdjuster::System::setup(const DenseBaProblem& problem,
   depths_.resize(K);
   prior_mean_.assign(K, Eigen::VectorXd());
   prior_omega_.assign(K, Eigen::VectorXd());
+  level_alpha_.assign(K, 0.0);
+  level_u_.assign(K, Eigen::VectorXd());
   var_.assign(K, -1);
   num_vars_ = 0;
   for (int k = 0; k < K; ++k) {
@@ -64,6 +66,11 @@ void DenseBundleAdjuster::System::setup(const DenseBaProblem& problem,
         const bool valid = std::isfinite(prior_mean_[k](p)) && var > 0 && var < kInf;
         prior_omega_[k](p) = valid ? 1.0 / var : 0.0;
         if (!valid) prior_mean_[k](p) = 0;
+      }
+      const Eigen::Index with_prior = (prior_omega_[k].array() > 0).count();
+      if (kf.prior_level_var > 0 && with_prior > 0) {
+        level_alpha_[k] = 1.0 / kf.prior_level_var;
+        level_u_[k] = (prior_omega_[k].array() > 0).cast<double>() / with_prior;
       }
     }
     bool fixed = kf.fixed_pose;
@@ -298,7 +305,20 @@ double DenseBundleAdjuster::System::priorPass(int k, const Eigen::VectorXd& d,
     lin->P[k] += omega;
     lin->w[k] += omega.cwiseProduct(r);
   }
-  return omega.dot(r.cwiseProduct(r));
+  double cost = omega.dot(r.cwiseProduct(r));
+  if (level_alpha_[k] > 0) {
+    const double level = level_u_[k].dot(r);
+    if (lin) lin->w[k] += level_alpha_[k] * level * level_u_[k];
+    cost += level_alpha_[k] * level * level;
+  }
+  return cost;
+}
+
+double DenseBundleAdjuster::System::levelBeta(const Linearization& lin, int k) const {
+  if (level_alpha_[k] <= 0) return 0;
+  // u is zero wherever D is (u only covers pixels with a prior, whose D holds its omega).
+  const double uDu = (level_u_[k].array().square() / lin.P[k].array().max(1e-300)).sum();
+  return level_alpha_[k] / (1 + level_alpha_[k] * uDu);
 }
 
 double DenseBundleAdjuster::System::evaluate(const std::vector<SE3>& poses,
@@ -430,20 +450,31 @@ void DenseBundleAdjuster::System::buildSchurTerm(Linearization* lin) {
     // Keyframe k's part: M (B P^-1 B^T) M^T and M B P^-1 w over pixels with P > 0.
     const Eigen::MatrixXd& B = lin->B[k];
     const Eigen::VectorXd& P = lin->P[k];
-    // One SYRK of [B P^-1/2; w^T P^-1/2] gives both B P^-1 B^T and B P^-1 w (last row).
+    // One SYRK of [B D^-1/2; w^T D^-1/2; u^T D^-1/2] gives B D^-1 B^T, B D^-1 w (row `rows`)
+    // and, with a level prior, B D^-1 u (last row); P^-1 = D^-1 - beta q q^T corrects both.
     const int rows = static_cast<int>(B.rows());
-    Bt_.resize(rows + 1, npix_);
+    const bool level = level_alpha_[k] > 0;
+    const int extra = level ? 2 : 1;
+    Bt_.resize(rows + extra, npix_);
     for (int p = 0; p < npix_; ++p) {
       const double scale = P(p) > 0 ? 1.0 / std::sqrt(P(p)) : 0.0;
       Bt_(rows, p) = lin->w[k](p) * scale;
+      if (level) Bt_(rows + 1, p) = level_u_[k](p) * scale;
       Bt_.col(p).head(rows) = B.col(p) * scale;
     }
-    Eigen::MatrixXd S = Eigen::MatrixXd::Zero(rows + 1, rows + 1);
+    Eigen::MatrixXd S = Eigen::MatrixXd::Zero(rows + extra, rows + extra);
     S.selfadjointView<Eigen::Lower>().rankUpdate(Bt_);
+    Eigen::MatrixXd BPB = S.topLeftCorner(rows, rows).selfadjointView<Eigen::Lower>();
+    Eigen::VectorXd BPw = S.row(rows).head(rows).transpose();
+    if (level) {
+      const double beta = levelBeta(*lin, k);
+      const Eigen::VectorXd BDu = S.row(rows + 1).head(rows).transpose();
+      BPB.noalias() -= beta * BDu * BDu.transpose();
+      BPw -= beta * S(rows + 1, rows) * BDu;
+    }
     const Eigen::MatrixXd M = slotMap(*lin, k);
-    const Eigen::MatrixXd G =
-        M * S.topLeftCorner(rows, rows).selfadjointView<Eigen::Lower>() * M.transpose();
-    const Eigen::VectorXd h = M * S.row(rows).head(rows).transpose();
+    const Eigen::MatrixXd G = M * BPB * M.transpose();
+    const Eigen::VectorXd h = M * BPw;
     for (int a = 0; a <= m; ++a) {
       const int va = vars[a];
       if (va < 0) continue;
@@ -537,7 +568,15 @@ bool DenseBundleAdjuster::System::solve(double lambda, std::vector<Vec6>* dxi,
     step = lin.w[k];
     if (m > 0) step.noalias() -= lin.B[k].transpose() * U;
     const Eigen::VectorXd& P = lin.P[k];
-    for (int p = 0; p < npix_; ++p) step(p) = P(p) > 0 ? depth_scale * step(p) / P(p) : 0.0;
+    for (int p = 0; p < npix_; ++p) step(p) = P(p) > 0 ? step(p) / P(p) : 0.0;
+    if (level_alpha_[k] > 0) {
+      // P^-1 r = D^-1 r - beta q (u^T D^-1 r), q = D^-1 u.
+      const double beta = levelBeta(lin, k), uDr = level_u_[k].dot(step);
+      for (int p = 0; p < npix_; ++p) {
+        if (P(p) > 0) step(p) -= beta * uDr * level_u_[k](p) / P(p);
+      }
+    }
+    step *= depth_scale;
   }
   return true;
 }

@@ -88,7 +88,7 @@ class DenseBundleAdjuster::System {
   struct Linearization {
     std::vector<EdgeLin> edges;
     std::vector<Eigen::MatrixXd> B;     // per keyframe, 6m x pixels
-    std::vector<Eigen::VectorXd> P, w;  // per keyframe, per pixel
+    std::vector<Eigen::VectorXd> P, w;  // per keyframe, per pixel (P: the diagonal part)
     BlockSymmetricMatrix C;             // undamped pose Hessian (free poses)
     Eigen::VectorXd v;                  // pose right-hand side
     BlockSymmetricMatrix G;             // Schur term E P^-1 E^T (undamped P)
@@ -141,8 +141,15 @@ class DenseBundleAdjuster::System {
   // pinned (delta = Q a, a_0 = 0) and the held distance.
   int pinned_kf_ = -1;
   double scale_distance_ = 0;
-  // Priors (omega = 1 / var, 0 for none).
+  // Priors (omega = 1 / var, 0 for none). Level priors: alpha (u^T r)^2 with u = 1/N on the N
+  // pixels with a prior (alpha = 0, u empty for none); the depth block is then
+  // P = D + alpha u u^T, D the diagonal that Linearization::P holds.
   std::vector<Eigen::VectorXd> prior_mean_, prior_omega_;
+  std::vector<double> level_alpha_;
+  std::vector<Eigen::VectorXd> level_u_;
+  /// Sherman-Morrison factor of keyframe k's depth block: P^-1 = D^-1 - beta q q^T, q = D^-1 u,
+  /// beta = alpha / (1 + alpha u^T D^-1 u); 0 without a level prior.
+  double levelBeta(const Linearization& lin, int k) const;
   Linearization lin_[2];
   int cur_ = 0;
   // Reduced system of the last solve.

@@ -187,6 +187,7 @@ void KeyframeGraph::anchor(int id) {
   if (!kf.inv_depth_var.empty()) {
     kf.ba.prior_inv_depth = kf.ba.inv_depth.clone();
     kf.ba.prior_inv_depth_var = kf.inv_depth_var.clone();
+    kf.ba.prior_level_var = 0;  // the marginals already hold the level
   }
   kf.ba.fixed_pose = true;
 }

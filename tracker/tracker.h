@@ -17,12 +17,14 @@
 ///
 /// Monocular initialisation: keyframe 0 gets a constant inverse depth (init_inv_depth, scene
 /// units); frames are aligned against it from frame 1 on; the first BA runs with the second
-/// keyframe. A weak prior pulls each inverse depth towards the keyframe's median
-/// (sigma = mono_prior_rel_sigma x median) so that pixels without parallax (pure rotation) stay
-/// determined. Gauge: "first_pose_and_scale" (keyframe 0 of the window fixed and its distance to
-/// keyframe 1): the second keyframe keeps its rotation free, which pure-rotation starts need
-/// (DROID's first_two_poses would freeze keyframe 1 at its rough motion-only pose); the scale
-/// gauge falls back to the prior alone while the baseline is degenerate.
+/// keyframe. A weak prior pulls each inverse depth towards init_inv_depth
+/// (sigma = mono_prior_rel_sigma x init_inv_depth) so that pixels without parallax (pure
+/// rotation) stay determined; its pull on the keyframe's mean (the scale) is kept whole, its
+/// pull on the shape weakened (mono_prior_shape_weight). Gauge: "first_pose_and_scale" (keyframe 0
+/// of the window fixed and its distance to keyframe 1): the second keyframe keeps its rotation
+/// free, which pure-rotation starts need (DROID's first_two_poses would freeze keyframe 1 at its
+/// rough motion-only pose); the scale gauge falls back to the prior alone while the baseline is
+/// degenerate.
 #pragma once
 
 #include <cstdint>
@@ -151,6 +153,10 @@ struct TrackerParams {
   // from the constant-depth alignment (rotation).
   double mono_init_min_parallax_deg = 1.0;
   double mono_prior_rel_sigma = 1.0;  // weak inverse-depth prior, relative to the median
+  // Monocular: the share of that prior's pull on each keyframe's shape (1 = all of it); its
+  // pull on the keyframe's mean inverse depth, which holds the scale, stays whole (a level
+  // prior, DenseBaKeyframe::prior_level_var). Below 1 the scene is flattened less.
+  double mono_prior_shape_weight = 0.35;
   // RGB-D and stereo: the same prior, towards the keyframe's median. At 1.0 it pulled the far
   // half of the synthetic street forward and made the stereo scale 15 % too large.
   double metric_prior_rel_sigma = 10.0;

@@ -129,8 +129,8 @@ inline void perturbDepths(cv::Mat* d, double relative, std::mt19937* rng) {
 }
 
 /// A small problem (3 keyframes, 8x6 grid) exercising everything the assembly handles: duplicate
-/// edges, a stereo edge, priors on part of a keyframe, zero weights, outliers for the Huber
-/// kernel, a perturbed state.
+/// edges, a stereo edge, priors on part of a keyframe with a level prior, zero weights, outliers
+/// for the Huber kernel, a perturbed state.
 inline DenseBaProblem richProblem(std::mt19937* rng) {
   test::SyntheticScene s = makeScene(3, 8, 6, 7.0, rng, 0.4);
   DenseBaProblem p = makeProblem(s, 0.0, rng);
@@ -157,6 +157,7 @@ inline DenseBaProblem richProblem(std::mt19937* rng) {
   kf1.prior_inv_depth = s.inv_depth[1].clone();
   kf1.prior_inv_depth_var = cv::Mat(6, 8, CV_32FC1, cv::Scalar(-1));
   for (int q = 0; q < 20; ++q) kf1.prior_inv_depth_var.at<float>(q) = 0.01f + 0.001f * q;
+  kf1.prior_level_var = 0.002;  // about the mean's variance from its 20 pixels' priors
   for (int k = 0; k < 3; ++k) {
     perturbPose(&p.keyframes[k].T_world_cam, 0.01, 0.02, rng);
     perturbDepths(&p.keyframes[k].inv_depth, 0.1, rng);

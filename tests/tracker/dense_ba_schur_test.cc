@@ -1,7 +1,7 @@
 // Dense BA: the Schur-complement step and the marginal covariances equal those of the full
 // (6N + M) normal equations, assembled here pixel by pixel from denseBaResidual (whose Jacobians
-// dense_ba_test.cc checks against finite differences) and solved / inverted densely; and the
-// dense LLT and CHOLMOD paths agree.
+// dense_ba_test.cc checks against finite differences) and the priors (a level prior included),
+// and solved / inverted densely; and the dense LLT and CHOLMOD paths agree.
 #include "tracker/dense_ba.h"
 
 #include <gtest/gtest.h>
@@ -125,9 +125,27 @@ FullSystem buildFullSystem(const DenseBaProblem& prob, const DenseBaOptions& opt
       H(dcol(k, p), dcol(k, p)) += 1 / var;
       b(dcol(k, p)) += (mu - kf.inv_depth.at<float>(p)) / var;
     }
+    // Level prior: (mean over the prior pixels of (mu - d))^2 / level_var.
+    if (kf.prior_level_var > 0) {
+      std::vector<int> pixels;
+      double mean_residual = 0;
+      for (int p = 0; p < npix; ++p) {
+        const double mu = kf.prior_inv_depth.at<float>(p);
+        if (!(kf.prior_inv_depth_var.at<float>(p) > 0) || !std::isfinite(mu)) continue;
+        pixels.push_back(p);
+        mean_residual += mu - kf.inv_depth.at<float>(p);
+      }
+      const double n_prior = static_cast<double>(pixels.size());
+      mean_residual /= n_prior;
+      const double alpha = 1 / kf.prior_level_var;
+      for (int p : pixels) {
+        b(dcol(k, p)) += alpha * mean_residual / n_prior;
+        for (int q : pixels) H(dcol(k, p), dcol(k, q)) += alpha / (n_prior * n_prior);
+      }
+    }
   }
   // Keep the depths with information; damp as the optimiser does (Marquardt: poses floored,
-  // depths by the factor 1 + lambda).
+  // the depth block, diagonal but for a level prior, by the factor 1 + lambda).
   std::vector<int> keep;
   for (int i = 0; i < n_pose; ++i) keep.push_back(i);
   fs.depth_col.assign(K, std::vector<int>(npix, -1));
@@ -144,12 +162,11 @@ FullSystem buildFullSystem(const DenseBaProblem& prob, const DenseBaOptions& opt
   fs.b.resize(m);
   for (int a = 0; a < m; ++a) {
     fs.b(a) = b(keep[a]);
-    for (int c = 0; c < m; ++c) fs.H(a, c) = H(keep[a], keep[c]);
-    if (a < n_pose) {
-      fs.H(a, a) += lambda * std::max(fs.H(a, a), opt.min_lm_diagonal);
-    } else {
-      fs.H(a, a) *= 1 + lambda;
+    for (int c = 0; c < m; ++c) {
+      fs.H(a, c) = H(keep[a], keep[c]);
+      if (a >= n_pose && c >= n_pose) fs.H(a, c) *= 1 + lambda;
     }
+    if (a < n_pose) fs.H(a, a) += lambda * std::max(fs.H(a, a), opt.min_lm_diagonal);
   }
   return fs;
 }
@@ -245,6 +262,37 @@ TEST_P(DenseBaGaugeTest, MarginalsEqualTheDenseInverseOfTheFullHessian) {
     }
     EXPECT_GT(finite, 100);
   }
+}
+
+// The depth right-hand side is minus half the gradient of the cost (no 1/2 in the cost), the
+// level prior's coupling of a keyframe's pixels included: central differences of evaluateCost.
+TEST(DenseBa, DepthRhsIsMinusHalfTheCostGradient) {
+  std::mt19937 rng(5);
+  DenseBaProblem prob = richProblem(&rng);
+  DenseBaOptions opt;
+  DenseBundleAdjuster ba(opt);
+  DenseBaStep step;
+  std::string error;
+  ASSERT_TRUE(ba.computeStep(prob, 0.0, &step, &error)) << error;
+  int checked = 0;
+  for (int k = 0; k < 3; ++k) {
+    for (int p = 0; p < 48; ++p) {
+      float& d = prob.keyframes[k].inv_depth.at<float>(p);
+      const float d0 = d, h = 1e-3f * d0;
+      d = d0 + h;
+      const double up = ba.evaluateCost(prob);
+      const double step_up = static_cast<double>(d) - d0;
+      d = d0 - h;
+      const double down = ba.evaluateCost(prob);
+      const double step_down = d0 - static_cast<double>(d);
+      d = d0;
+      const double numeric = -0.5 * (up - down) / (step_up + step_down);
+      const double analytic = step.depth_rhs[k].at<double>(p);
+      EXPECT_NEAR(analytic, numeric, 1e-4 * (1 + std::abs(numeric))) << k << " " << p;
+      ++checked;
+    }
+  }
+  EXPECT_EQ(checked, 144);
 }
 
 INSTANTIATE_TEST_SUITE_P(Gauges, DenseBaGaugeTest,
