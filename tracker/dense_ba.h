@@ -62,10 +62,9 @@ struct DenseBaKeyframe {
   cv::Mat prior_inv_depth;
   cv::Mat prior_inv_depth_var;
   /// Optional prior on the keyframe's level (1/m^2; 0 = none): variance of the mean of
-  /// (prior_inv_depth - inv_depth) over the pixels with a prior. With a per-pixel prior of
-  /// variance var / s on N pixels and level variance var / ((1 - s) N), the level is held as
-  /// hard as by the per-pixel prior of variance var alone, the shape s times as hard
-  /// (monocular: the scale, tracker/tracker.h mono_prior_shape_weight).
+  /// (prior_inv_depth - inv_depth) over the pixels with a prior. It holds the level harder
+  /// than a weak per-pixel prior does without flattening the shape (monocular: the scale,
+  /// tracker/tracker.h mono_level_rel_sigma).
   double prior_level_var = 0;
 };
 

@@ -908,14 +908,18 @@ void Tracker::Impl::setPrior(const KeyframeData& k, DenseBaKeyframe* out) const 
                             : medianPositive(k.ba.inv_depth, p.init_inv_depth);
   const double weak_sigma =
       (mode == TrackerMode::kMono ? p.mono_prior_rel_sigma : p.metric_prior_rel_sigma) * median;
-  // Monocular: the shape gets mono_prior_shape_weight of the pull, the level all of it.
-  const double shape_weight = mode == TrackerMode::kMono ? p.mono_prior_shape_weight : 1.0;
-  const double pixel_var = weak_sigma * weak_sigma;
   out->prior_inv_depth = cv::Mat(k.ba.inv_depth.size(), CV_32FC1, cv::Scalar(median));
   out->prior_inv_depth_var =
-      cv::Mat(k.ba.inv_depth.size(), CV_32FC1, cv::Scalar(pixel_var / shape_weight));
-  out->prior_level_var =
-      shape_weight < 1 ? pixel_var / ((1 - shape_weight) * k.ba.inv_depth.total()) : 0.0;
+      cv::Mat(k.ba.inv_depth.size(), CV_32FC1, cv::Scalar(weak_sigma * weak_sigma));
+  // Monocular: the keyframe's mean is held with precision N / level_sigma^2, of which the N
+  // pixels' own prior gives N / weak_sigma^2.
+  out->prior_level_var = 0;
+  if (mode == TrackerMode::kMono && p.mono_level_rel_sigma < p.mono_prior_rel_sigma) {
+    const double level_sigma = p.mono_level_rel_sigma * median;
+    const double pixels = static_cast<double>(k.ba.inv_depth.total());
+    out->prior_level_var =
+        1.0 / (pixels * (1.0 / (level_sigma * level_sigma) - 1.0 / (weak_sigma * weak_sigma)));
+  }
   if (!k.sensor_inv_depth.empty()) {
     for (int v = 0; v < k.sensor_inv_depth.rows; ++v) {
       for (int u = 0; u < k.sensor_inv_depth.cols; ++u) {

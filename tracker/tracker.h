@@ -17,14 +17,14 @@
 ///
 /// Monocular initialisation: keyframe 0 gets a constant inverse depth (init_inv_depth, scene
 /// units); frames are aligned against it from frame 1 on; the first BA runs with the second
-/// keyframe. A weak prior pulls each inverse depth towards init_inv_depth
-/// (sigma = mono_prior_rel_sigma x init_inv_depth) so that pixels without parallax (pure
-/// rotation) stay determined; its pull on the keyframe's mean (the scale) is kept whole, its
-/// pull on the shape weakened (mono_prior_shape_weight). Gauge: "first_pose_and_scale" (keyframe 0
-/// of the window fixed and its distance to keyframe 1): the second keyframe keeps its rotation
-/// free, which pure-rotation starts need (DROID's first_two_poses would freeze keyframe 1 at its
-/// rough motion-only pose); the scale gauge falls back to the prior alone while the baseline is
-/// degenerate.
+/// keyframe. A weak prior pulls each inverse depth towards init_inv_depth (sigma =
+/// mono_prior_rel_sigma x init_inv_depth) so that pixels without parallax (pure rotation) stay
+/// determined, and a level prior holds each keyframe's mean inverse depth, the scale
+/// (mono_level_rel_sigma). Gauge (mono_gauge): the first window keyframe's pose, the scale by
+/// those priors. "first_pose_and_scale" also holds keyframe 0's distance to keyframe 1 and keeps
+/// keyframe 1's rotation free, which pure-rotation starts need (DROID's first_two_poses would
+/// freeze keyframe 1 at its rough motion-only pose); it falls back to the priors alone while the
+/// baseline is degenerate.
 #pragma once
 
 #include <cstdint>
@@ -152,11 +152,13 @@ struct TrackerParams {
   // (tracker/mono_init.h) when the median ray angle of its inliers reaches this (deg); below,
   // from the constant-depth alignment (rotation).
   double mono_init_min_parallax_deg = 1.0;
-  double mono_prior_rel_sigma = 1.0;  // weak inverse-depth prior, relative to the median
-  // Monocular: the share of that prior's pull on each keyframe's shape (1 = all of it); its
-  // pull on the keyframe's mean inverse depth, which holds the scale, stays whole (a level
-  // prior, DenseBaKeyframe::prior_level_var). Below 1 the scene is flattened less.
-  double mono_prior_shape_weight = 0.35;
+  // Monocular weak inverse-depth prior on each pixel, relative to its mean (init_inv_depth):
+  // it keeps pixels without parallax determined and flattens the scene.
+  double mono_prior_rel_sigma = 1.7;
+  // Monocular scale: each keyframe's mean inverse depth is held as hard as a per-pixel prior
+  // of this relative sigma would hold it (the pixels' own prior holds part, a level prior the
+  // rest: DenseBaKeyframe::prior_level_var; none when not below mono_prior_rel_sigma).
+  double mono_level_rel_sigma = 1.0;
   // RGB-D and stereo: the same prior, towards the keyframe's median. At 1.0 it pulled the far
   // half of the synthetic street forward and made the stereo scale 15 % too large.
   double metric_prior_rel_sigma = 10.0;

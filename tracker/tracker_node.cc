@@ -110,8 +110,7 @@ void validateTrackerParams(const TrackerParams& p) {
   check(p.mono_init_flow_px > 0, "mono_init_flow_px must be > 0");
   check(p.mono_init_min_parallax_deg >= 0, "mono_init_min_parallax_deg must be >= 0");
   check(p.mono_prior_rel_sigma > 0, "mono_prior_rel_sigma must be > 0");
-  check(p.mono_prior_shape_weight > 0 && p.mono_prior_shape_weight <= 1,
-        "mono_prior_shape_weight must be in (0, 1]");
+  check(p.mono_level_rel_sigma > 0, "mono_level_rel_sigma must be > 0");
   check(p.metric_prior_rel_sigma > 0, "metric_prior_rel_sigma must be > 0");
   check(p.depth_sigma_a > 0 && p.depth_sigma_b >= 0, "depth_sigma_a > 0, depth_sigma_b >= 0");
   check(p.depth_min_m > 0 && p.depth_max_m > p.depth_min_m, "0 < depth_min_m < depth_max_m");
@@ -208,7 +207,7 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("mono_init_flow_px", &p.mono_init_flow_px);
   r.get("mono_init_min_parallax_deg", &p.mono_init_min_parallax_deg);
   r.get("mono_prior_rel_sigma", &p.mono_prior_rel_sigma);
-  r.get("mono_prior_shape_weight", &p.mono_prior_shape_weight);
+  r.get("mono_level_rel_sigma", &p.mono_level_rel_sigma);
   r.get("metric_prior_rel_sigma", &p.metric_prior_rel_sigma);
   r.get("depth_sigma_a", &p.depth_sigma_a);
   r.get("depth_sigma_b", &p.depth_sigma_b);
