@@ -1,5 +1,6 @@
 #include "mapper/field_io.h"
 
+#include <algorithm>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -146,24 +147,27 @@ SnapshotSender::SnapshotSender(Field* field, int64_t snapshot_id, int max_blocks
     for (int b = 0; b < field->numBlocks(l); ++b) blocks_.emplace_back(l, b);
   sent_at_.assign(blocks_.size(), 0);
   chunk_count_ = std::max<int>(1, (blocks_.size() + max_blocks_ - 1) / max_blocks_);
+  for (int i = 0; i < chunk_count_; ++i) pending_.push_back(i);
 }
 
 FieldUpdate SnapshotSender::next() {
   if (done()) throw std::logic_error("SnapshotSender::next: the snapshot was sent");
+  const int chunk = pending_.front();
+  pending_.pop_front();
   version_ = field_->version();
   FieldUpdate u = header(*field_);
   u.version = version_;
   u.base_version = 0;
   u.is_snapshot = true;
   u.snapshot_id = snapshot_id_;
-  u.chunk_index = sent_;
+  u.chunk_index = chunk;
   u.chunk_count = chunk_count_;
-  const size_t end = std::min(blocks_.size(), next_ + max_blocks_);
-  for (; next_ < end; ++next_) {
-    u.blocks.push_back(blockOf(*field_, blocks_[next_].first, blocks_[next_].second));
-    sent_at_[next_] = version_;
+  const size_t begin = size_t(chunk) * max_blocks_;
+  const size_t end = std::min(blocks_.size(), begin + max_blocks_);
+  for (size_t i = begin; i < end; ++i) {
+    u.blocks.push_back(blockOf(*field_, blocks_[i].first, blocks_[i].second));
+    sent_at_[i] = version_;
   }
-  ++sent_;
   if (done()) {
     for (size_t i = 0; i < blocks_.size(); ++i) {
       const auto [l, b] = blocks_[i];
@@ -173,41 +177,96 @@ FieldUpdate SnapshotSender::next() {
   return u;
 }
 
+int SnapshotSender::resend(const std::vector<int>& chunks) {
+  int queued = 0;
+  for (int c : chunks) {
+    if (c < 0 || c >= chunk_count_ ||
+        std::find(pending_.begin(), pending_.end(), c) != pending_.end())
+      continue;
+    pending_.push_back(c);
+    ++queued;
+  }
+  return queued;
+}
+
+void SnapshotAssembler::reset() {
+  field_ = Field();
+  snapshot_id_ = -1;
+  received_.clear();
+  received_count_ = 0;
+}
+
 SnapshotAssembler::Result SnapshotAssembler::add(const FieldUpdate& chunk, std::string* error) {
   if (!chunk.is_snapshot) {
     *error = "field update " + std::to_string(chunk.version) + " is not a snapshot chunk";
     return Result::kInvalid;
   }
-  if (chunk.chunk_index == 0) {
-    snapshot_id_ = chunk.snapshot_id;
-    expected_ = 0;
-  } else if (chunk.snapshot_id != snapshot_id_ || chunk.chunk_index != expected_) {
+  if (chunk.snapshot_id < 0 || chunk.chunk_count < 1 || chunk.chunk_index < 0 ||
+      chunk.chunk_index >= chunk.chunk_count) {
     *error = "snapshot " + std::to_string(chunk.snapshot_id) + ": chunk " +
              std::to_string(chunk.chunk_index) + " of " + std::to_string(chunk.chunk_count) +
-             (expected_ > 0 ? ", expected chunk " + std::to_string(expected_)
-                            : ", its first chunk was missed");
-    expected_ = 0;
-    field_ = Field();
-    return Result::kLost;
-  }
-  // Chunk 0 replaces the staging field; later chunks add to it (as an update at its version).
-  FieldUpdate part = chunk;
-  if (chunk.chunk_index > 0) {
-    part.is_snapshot = false;
-    part.base_version = field_.version();
-    part.version = field_.version() + 1;
-  }
-  const ApplyResult r = applyFieldUpdate(part, &field_, error);
-  if (r != ApplyResult::kApplied) {
-    expected_ = 0;
-    field_ = Field();
+             " is not a chunk of a snapshot";
     return Result::kInvalid;
   }
-  field_.setVersion(chunk.version);
-  expected_ = chunk.chunk_index + 1;
-  if (expected_ < chunk.chunk_count) return Result::kIncomplete;
-  expected_ = 0;
+  if (chunk.snapshot_id != snapshot_id_ ||
+      static_cast<int>(received_.size()) != chunk.chunk_count) {
+    reset();  // a newer snapshot (or another mapper's) replaces the one in progress
+    snapshot_id_ = chunk.snapshot_id;
+    received_.assign(chunk.chunk_count, false);
+  }
+  // The first chunk to arrive makes the staging field; the others add their blocks to it (a
+  // chunk sent again brings its blocks' newer content).
+  const int64_t version = std::max(field_.initialized() ? field_.version() : 0, chunk.version);
+  const ApplyResult r = field_.initialized() ? repairFromSnapshotChunk(chunk, &field_, error)
+                                             : applyFieldUpdate(chunk, &field_, error);
+  if (r != ApplyResult::kApplied) {
+    reset();
+    return Result::kInvalid;
+  }
+  field_.setVersion(version);
+  if (!received_[chunk.chunk_index]) {
+    received_[chunk.chunk_index] = true;
+    ++received_count_;
+  }
+  if (received_count_ < chunk.chunk_count) return Result::kIncomplete;
+  snapshot_id_ = -1;
+  received_.clear();
+  received_count_ = 0;
   return Result::kComplete;
+}
+
+std::vector<int> SnapshotAssembler::missing() const {
+  std::vector<int> out;
+  for (size_t i = 0; i < received_.size(); ++i)
+    if (!received_[i]) out.push_back(static_cast<int>(i));
+  return out;
+}
+
+std::string snapshotChunksArgument(int64_t snapshot_id, const std::vector<int>& chunks) {
+  std::string s = "chunks " + std::to_string(snapshot_id) + " ";
+  for (size_t i = 0; i < chunks.size(); ++i) s += (i ? "," : "") + std::to_string(chunks[i]);
+  return s;
+}
+
+bool parseSnapshotChunksArgument(const std::string& argument, int64_t* snapshot_id,
+                                 std::vector<int>* chunks) {
+  std::istringstream in(argument);
+  std::string word, list;
+  long long id = -1;
+  if (!(in >> word >> id >> list) || word != "chunks" || id < 0 || !(in >> std::ws).eof())
+    return false;
+  std::vector<int> parsed;
+  std::istringstream items(list);
+  for (std::string item; std::getline(items, item, ',');) {
+    char* end = nullptr;
+    const long value = std::strtol(item.c_str(), &end, 10);
+    if (item.empty() || *end != '\0' || value < 0 || value > 1000000) return false;
+    parsed.push_back(static_cast<int>(value));
+  }
+  if (parsed.empty()) return false;
+  *snapshot_id = id;
+  *chunks = std::move(parsed);
+  return true;
 }
 
 const char* applyResultName(ApplyResult result) {

@@ -9,10 +9,10 @@
 /// one made after its last change, reproduces its field bitwise.
 ///
 /// Snapshots travel in chunks (SnapshotSender), so that no message outgrows what the bus
-/// delivers: taken at version v, each chunk carries the current values of its blocks. A
-/// replica assembles the chunks of one snapshot in order (SnapshotAssembler) and takes the
-/// result at version v once the last one arrived; blocks changed while the chunks were on
-/// their way come again in the mapper's next update, which it bases at v or earlier.
+/// delivers: each chunk carries the current values of its blocks. A replica assembles the
+/// chunks of one snapshot (SnapshotAssembler), asks for the ones it lost again, and takes the
+/// result once every chunk arrived, at the version v of the latest; blocks changed after their
+/// chunk went out come again in the mapper's next update, which it bases at v or earlier.
 ///
 /// Payload layout "rsvox1": per block, kBlockVoxels * channels float32 values, little-endian,
 /// voxel-major (x fastest, then y, then z) and channel-minor as in Field. The layout string
@@ -22,7 +22,9 @@
 #pragma once
 
 #include <cstdint>
+#include <deque>
 #include <string>
+#include <vector>
 
 #include "common/types.h"
 #include "mapper/field.h"
@@ -54,21 +56,28 @@ FieldUpdate makeFieldSnapshot(Field* field);
 
 /// A snapshot in chunks of at most max_blocks blocks each: the block list is taken (after a
 /// commit) at construction, each chunk reads the blocks' values when it is made. The field must
-/// outlive the sender and keep its blocks (blocks are only ever added).
+/// outlive the sender and keep its blocks (blocks are only ever added). Chunks a replica lost
+/// are sent again on request (resend), with the content they have then.
 class SnapshotSender {
  public:
   SnapshotSender(Field* field, int64_t snapshot_id, int max_blocks);
-  bool done() const { return next_ >= blocks_.size() && sent_ > 0; }
+  /// Every chunk asked for so far was sent (resend() makes a sender busy again).
+  bool done() const { return pending_.empty(); }
+  int64_t id() const { return snapshot_id_; }
   /// The field version when the last chunk so far was sent: a replica that assembled the whole
   /// snapshot is at version() of its last chunk, so the deltas sent meanwhile, based on the
   /// same version, follow it without a gap.
   int64_t version() const { return version_; }
   int chunkCount() const { return chunk_count_; }
   /// The next chunk (is_snapshot, chunk_index, chunk_count, version = the field's now): the
-  /// blocks' current content. With the last chunk, blocks committed after their own chunk went
-  /// out are marked changed again, so that deltas bring the assembled replica up to date
-  /// (sending the snapshot does not hold the deltas back). Throws std::logic_error when done().
+  /// blocks' current content. With the last chunk asked for, blocks committed after their own
+  /// chunk went out are marked changed again, so that deltas bring the assembled replica up to
+  /// date (sending the snapshot does not hold the deltas back). Throws std::logic_error when
+  /// done().
   FieldUpdate next();
+  /// Queues chunks to send again (indices outside [0, chunkCount()) and chunks already queued
+  /// are ignored); returns how many were queued.
+  int resend(const std::vector<int>& chunks);
 
  private:
   Field* field_;
@@ -78,25 +87,37 @@ class SnapshotSender {
   int chunk_count_;
   std::vector<std::pair<int, int>> blocks_;  // (level, block)
   std::vector<int64_t> sent_at_;             // field version when each block's chunk went out
-  size_t next_ = 0;
-  int sent_ = 0;
+  std::deque<int> pending_;                  // chunk indices still to send, in order
 };
 
-/// Collects the chunks of a snapshot into a field of its own. Chunks must come in order: a
-/// missing chunk abandons the snapshot (the replica asks for another).
+/// Collects the chunks of a snapshot into a field of its own, in any order: chunks of another
+/// snapshot start over with that one. missing() says which chunks to ask for again; the
+/// snapshot is complete, at the version of the latest chunk, once every chunk arrived.
 class SnapshotAssembler {
  public:
-  enum class Result { kIncomplete, kComplete, kLost, kInvalid };
+  enum class Result { kIncomplete, kComplete, kInvalid };
   /// Takes a snapshot chunk (update.is_snapshot). kComplete: field() holds the snapshot.
   Result add(const FieldUpdate& chunk, std::string* error);
   Field& field() { return field_; }
-  bool inProgress() const { return expected_ > 0; }
+  bool inProgress() const { return snapshot_id_ >= 0; }
+  int64_t snapshotId() const { return snapshot_id_; }
+  /// The chunk indices of the snapshot in progress that have not arrived, ascending.
+  std::vector<int> missing() const;
 
  private:
+  void reset();
   Field field_;
-  int64_t snapshot_id_ = -1;
-  int expected_ = 0;  // next chunk index; 0 = none in progress
+  int64_t snapshot_id_ = -1;  // -1: none in progress
+  std::vector<bool> received_;
+  int received_count_ = 0;
 };
+
+/// CONTROL SNAPSHOT argument asking for chunks of a snapshot again: "chunks ID I,J,...".
+/// Any other argument asks for a whole new snapshot.
+std::string snapshotChunksArgument(int64_t snapshot_id, const std::vector<int>& chunks);
+/// Parses snapshotChunksArgument's format; false (outputs unchanged) for anything else.
+bool parseSnapshotChunksArgument(const std::string& argument, int64_t* snapshot_id,
+                                 std::vector<int>* chunks);
 
 enum class ApplyResult {
   kApplied,  // the replica is at update.version now

@@ -74,6 +74,7 @@ MapperNode::MapperNode(Bus* bus, const MapperNodeParams& params, std::string out
   bus_->subscribe<Control>(channel::kControl, [this](const Control& c) { onControl(c); });
   bus_->subscribe<Status>(channel::kStatus, [this](const Status& s) { onStatus(s); });
   reporter_.setState(ProcessState::kIdle);
+  snapshot_seq_ = wallClockMicros();
 }
 
 MapperNode::~MapperNode() = default;
@@ -138,7 +139,24 @@ void MapperNode::onControl(const Control& control) {
       save_requested_ = true;
       save_request_ = control.argument;
       break;
-    case ControlCommand::kSnapshot:
+    case ControlCommand::kSnapshot: {
+      // Lost chunks of the last snapshot go out again at once; a whole one waits for its turn.
+      int64_t id = -1;
+      std::vector<int> chunks;
+      if (parseSnapshotChunksArgument(control.argument, &id, &chunks)) {
+        if (!snapshot_ && sent_snapshot_ && sent_snapshot_->id() == id) {
+          snapshot_ = std::move(sent_snapshot_);
+          sent_snapshot_.reset();
+        }
+        // (Another snapshot on its way serves the replica as well.)
+        if (snapshot_) {
+          if (snapshot_->id() == id) snapshot_->resend(chunks);
+          break;
+        }
+      }
+      snapshot_requested_ = true;
+      break;
+    }
     case ControlCommand::kRepublish:
       snapshot_requested_ = true;
       break;
@@ -147,6 +165,7 @@ void MapperNode::onControl(const Control& control) {
       newest_keyframe_utime_ = 0;
       missing_requests_.clear();
       snapshot_.reset();  // its blocks are gone
+      sent_snapshot_.reset();
       mapper_.reset();
       queue_.clear();
       frame_poses_.clear();
@@ -293,6 +312,7 @@ void MapperNode::startSnapshot() {
   // In chunks of one message, 3/4 of each update period's blocks, next to deltas of the rest:
   // a snapshot never outgrows the FIELD rate (a whole one would be one message of the whole
   // field), and the live view of the replicas that do not need it keeps moving.
+  sent_snapshot_.reset();
   snapshot_.emplace(mapper_.makeSnapshotSender(++snapshot_seq_, blocksPerMessage()));
 }
 
@@ -301,7 +321,10 @@ int MapperNode::publishSnapshotChunk() {
   publishField(&u);
   // The deltas go on from delta_base_, the version of the last chunk (SnapshotSender::next
   // marks what the assembled replica lacks as changed): no delta grows past the budget.
-  if (snapshot_->done()) snapshot_.reset();
+  if (snapshot_->done()) {
+    sent_snapshot_ = std::move(snapshot_);
+    snapshot_.reset();
+  }
   return static_cast<int>(u.blocks.size());
 }
 

@@ -106,8 +106,11 @@ class MapperNode {
   std::map<int32_t, RefinedPose> unpublished_poses_;  // refined since, within the deadband
   int64_t delta_base_ = 0;                            // version of the last published delta update
   bool snapshot_requested_ = false;
-  std::optional<SnapshotSender> snapshot_;
-  bool flushing_ = false;  // the final flush is under way
+  std::optional<SnapshotSender> snapshot_;       // chunks to send
+  std::optional<SnapshotSender> sent_snapshot_;  // the last one sent, for chunks asked again
+  bool flushing_ = false;                        // the final flush is under way
+  // Snapshot ids: from the start time (us), so that a restarted mapper's snapshots differ
+  // from those replicas may still be assembling.
   int64_t snapshot_seq_ = 0;
   bool stop_ = false;
   std::string save_request_;  // checkpoint path asked for by CONTROL SAVE ("" = none)

@@ -1,5 +1,6 @@
 #include "renderer/field_replica.h"
 
+#include <algorithm>
 #include <stdexcept>
 
 #include "mapper/field_io.h"
@@ -26,21 +27,19 @@ ApplyResult FieldReplica::apply(const FieldUpdate& update, std::string* error) {
     last_progress_s_ = now_s_;
     // The chunk's blocks repair the live field now; the whole snapshot makes it exact.
     if (field_.initialized()) repairFromSnapshotChunk(update, &field_, &why);
-    switch (assembler_.add(update, &why)) {
+    const int64_t snapshot_in_progress = assembler_.snapshotId();
+    const SnapshotAssembler::Result added = assembler_.add(update, &why);
+    if (assembler_.snapshotId() != snapshot_in_progress) asked_order_.clear();
+    switch (added) {
       case SnapshotAssembler::Result::kIncomplete:
+        requestLostChunks(update);
         return ApplyResult::kPartial;
       case SnapshotAssembler::Result::kComplete:
         field_ = std::move(assembler_.field());
         assembler_.field() = Field();
         waiting_snapshot_ = false;
+        asked_order_.clear();
         return ApplyResult::kApplied;
-      case SnapshotAssembler::Result::kLost:
-        // A snapshot joined half-way (or one that lost a chunk): ask for the next one now (the
-        // mapper serves the requests of a period together).
-        ++gaps_;
-        requestSnapshot(why);
-        if (error) *error = why;
-        return ApplyResult::kGap;
       case SnapshotAssembler::Result::kInvalid:
         if (error) *error = why;
         return ApplyResult::kInvalid;
@@ -74,7 +73,30 @@ ApplyResult FieldReplica::apply(const FieldUpdate& update, std::string* error) {
 void FieldReplica::requestSnapshot(const std::string& reason) {
   waiting_snapshot_ = true;
   last_progress_s_ = now_s_;
-  if (request_snapshot_) request_snapshot_(reason);
+  if (request_snapshot_) request_snapshot_(SnapshotAsk{reason, -1, {}});
+}
+
+void FieldReplica::requestLostChunks(const FieldUpdate& chunk) {
+  // The mapper sends a snapshot's chunks in order, then those asked for again in the order
+  // asked: a chunk still missing that should have come before this one was lost.
+  const auto asked = asked_order_.find(chunk.chunk_index);
+  std::vector<int> lost;
+  for (int c : assembler_.missing()) {
+    const auto it = asked_order_.find(c);
+    if (asked == asked_order_.end() ? (c < chunk.chunk_index && it == asked_order_.end())
+                                    : (it != asked_order_.end() && it->second < asked->second))
+      lost.push_back(c);
+  }
+  if (lost.empty()) return;
+  requestChunks(lost, "chunk " + std::to_string(chunk.chunk_index) + " of " +
+                          std::to_string(chunk.chunk_count) + " came after a lost one");
+}
+
+void FieldReplica::requestChunks(const std::vector<int>& chunks, const std::string& reason) {
+  ++gaps_;
+  last_progress_s_ = now_s_;
+  for (int c : chunks) asked_order_[c] = ++asked_count_;
+  if (request_snapshot_) request_snapshot_(SnapshotAsk{reason, assembler_.snapshotId(), chunks});
 }
 
 void FieldReplica::missedUpdate(const std::string& reason) {
@@ -84,9 +106,13 @@ void FieldReplica::missedUpdate(const std::string& reason) {
 
 void FieldReplica::retryStalledSnapshot(double now_s, double stall_s) {
   now_s_ = now_s;
-  if (waiting_snapshot_ && now_s - last_progress_s_ > stall_s) {
-    requestSnapshot("no snapshot arrived within " + std::to_string(static_cast<int>(stall_s)) +
-                    " s of asking");
+  if (!waiting_snapshot_ || now_s - last_progress_s_ <= stall_s) return;
+  const std::string reason =
+      "no snapshot chunk within " + std::to_string(static_cast<int>(stall_s)) + " s";
+  if (assembler_.inProgress()) {
+    requestChunks(assembler_.missing(), reason);
+  } else {
+    requestSnapshot(reason);
   }
 }
 

@@ -6,8 +6,10 @@
 #include <atomic>
 #include <cstdint>
 #include <functional>
+#include <map>
 #include <mutex>
 #include <string>
+#include <vector>
 
 #include "common/lie.h"
 #include "common/types.h"
@@ -29,9 +31,15 @@ struct ReplicaRenderParams {
 
 class FieldReplica {
  public:
-  /// Called when an update cannot be applied because earlier ones are missing (late join,
-  /// lost message): the owner asks the mapper for a snapshot. `reason` says why.
-  using SnapshotRequest = std::function<void(const std::string& reason)>;
+  /// What the replica asks the mapper for when an update cannot be applied because earlier
+  /// ones are missing (late join, lost message): a whole snapshot (chunks empty), or the
+  /// chunks of snapshot_id it lost. `reason` says why.
+  struct SnapshotAsk {
+    std::string reason;
+    int64_t snapshot_id = -1;
+    std::vector<int> chunks;
+  };
+  using SnapshotRequest = std::function<void(const SnapshotAsk& ask)>;
 
   explicit FieldReplica(ReplicaRenderParams params = ReplicaRenderParams()) : params_(params) {}
   void setSnapshotRequest(SnapshotRequest callback) { request_snapshot_ = std::move(callback); }
@@ -39,15 +47,17 @@ class FieldReplica {
   /// Applies an update in version order or a snapshot whole. A non-snapshot update whose
   /// base_version is ahead of the replica (a late join, a lost message) is a gap: its blocks are
   /// applied all the same (GapPolicy::kApply, so a live view stays live) and a snapshot is asked
-  /// for (once until one arrives), which makes the replica exact again. Returns the result;
-  /// *error says what was wrong on kGap and kInvalid.
+  /// for (once until one arrives), which makes the replica exact again. A snapshot chunk past
+  /// chunks that did not come asks for those again at once. Returns the result; *error says
+  /// what was wrong on kGap and kInvalid.
   ApplyResult apply(const FieldUpdate& update, std::string* error = nullptr);
 
   const Field& field() const { return field_; }
   int64_t version() const { return field_.initialized() ? field_.version() : version_empty_; }
   bool waitingForSnapshot() const { return waiting_snapshot_; }
-  /// Asks again for a snapshot asked for more than stall_s ago (s) that made no progress since
-  /// (a lost request or a lost chunk). now_s: any monotonic clock, s.
+  /// Asks again for what a snapshot asked for more than stall_s ago (s) lacks when it made no
+  /// progress since (a lost request or lost chunks): its missing chunks, or a whole snapshot
+  /// when none is in progress. now_s: any monotonic clock, s.
   void retryStalledSnapshot(double now_s, double stall_s);
   /// An update known to exist that never arrived (the mapper's STATUS reports a newer version
   /// than the last update received: the last update of a run leaves no later one to show the
@@ -82,9 +92,15 @@ class FieldReplica {
   SnapshotRequest request_snapshot_;
   int64_t version_empty_ = 0;  // version of an (empty) replica before the field exists
   void requestSnapshot(const std::string& reason);
+  /// Asks for the chunks of the snapshot in progress that a chunk just received shows lost.
+  void requestLostChunks(const FieldUpdate& chunk);
+  void requestChunks(const std::vector<int>& chunks, const std::string& reason);
 
   bool waiting_snapshot_ = false;
   SnapshotAssembler assembler_;
+  // Chunks of the snapshot in progress asked for again, by when they were last asked for.
+  std::map<int, int64_t> asked_order_;
+  int64_t asked_count_ = 0;
   double now_s_ = 0;            // last time seen by retryStalledSnapshot
   double last_progress_s_ = 0;  // last request or snapshot chunk
   int64_t gaps_ = 0;

@@ -14,8 +14,10 @@
 namespace radslam {
 namespace {
 
-// A snapshot asked for that makes no progress for this long (s) is asked for again.
-constexpr double kSnapshotStallS = 15.0;
+// A snapshot asked for that makes no progress for this long (s) is asked for again (its lost
+// chunks, when some arrived). The mapper serves whole snapshots at most every
+// snapshot_min_period_s and lost chunks at once; asking twice costs nothing.
+constexpr double kSnapshotStallS = 5.0;
 
 // Warn about the first few of a kind, then every 100th, so a bad stream cannot flood the log.
 bool shouldWarn(int64_t count) { return count <= 5 || count % 100 == 0; }
@@ -103,13 +105,20 @@ RendererNode::RendererNode(Bus* bus, RendererParams params, std::string out_dir)
       }()),
       reporter_("renderer") {
   validate(params_);
-  replica_.setSnapshotRequest([this](const std::string& reason) {
-    ++snapshots_requested_;
-    std::cerr << "radslam-renderer: asking the mapper for a snapshot: " << reason << "\n";
+  replica_.setSnapshotRequest([this](const FieldReplica::SnapshotAsk& ask) {
     Control c;
     c.command = ControlCommand::kSnapshot;
     c.target = "mapper";
-    c.argument = "renderer";
+    if (ask.chunks.empty()) {
+      ++snapshots_requested_;
+      std::cerr << "radslam-renderer: asking the mapper for a snapshot: " << ask.reason << "\n";
+      c.argument = "renderer";
+    } else {
+      ++chunks_requested_;
+      c.argument = snapshotChunksArgument(ask.snapshot_id, ask.chunks);
+      std::cerr << "radslam-renderer: asking the mapper again for " << ask.chunks.size()
+                << " chunk(s) of snapshot " << ask.snapshot_id << ": " << ask.reason << "\n";
+    }
     bus_->publish(channel::kControl, c);
   });
   bus_->subscribe<FieldUpdate>(channel::kField, [this](const FieldUpdate& u) { onField(u); });
@@ -298,6 +307,7 @@ void RendererNode::publishStatus(ProcessState state) {
   reporter_.setValue("renders", static_cast<double>(renders_));
   reporter_.setValue("bad_requests", static_cast<double>(bad_requests_));
   reporter_.setValue("snapshots_requested", static_cast<double>(snapshots_requested_));
+  reporter_.setValue("snapshot_chunks_requested", static_cast<double>(chunks_requested_));
   reporter_.setValue("waiting_for_snapshot", waitingForSnapshot() ? 1 : 0);
   reporter_.setValue("keyframes", static_cast<double>(keyframes_.size()));
   reporter_.setValue("preview_stale_blocks", static_cast<double>(replica_.previewStaleBlocks()));

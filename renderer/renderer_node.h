@@ -114,7 +114,7 @@ class RendererNode {
   std::map<int32_t, ViewPose> keyframes_;   // keyframe id -> latest version's pose
   std::map<int32_t, int32_t> keyframe_versions_;
   CameraModel last_camera_;
-  int64_t renders_ = 0, bad_requests_ = 0, snapshots_requested_ = 0;
+  int64_t renders_ = 0, bad_requests_ = 0, snapshots_requested_ = 0, chunks_requested_ = 0;
   int64_t last_status_us_ = 0;
   // Lost-update check against the mapper's STATUS (bus thread): a version the mapper reported
   // on its previous STATUS must have arrived by its next one (FIELD goes out before it).

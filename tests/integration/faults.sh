@@ -4,7 +4,8 @@
 #   1. lost messages: every process drops 5% of the KEYFRAME and FIELD messages it publishes
 #      (RADSLAM_DROP, evenly spread: the 10th, 30th, ...). The mapper must ask the tracker for
 #      the lost keyframes and end with all of them; the renderer must follow the field through
-#      the gaps (same final version as the mapper's).
+#      the gaps (same final version as the mapper's) and end exact (lost snapshot chunks are
+#      asked for again).
 #   2. every process but the player killed in turn: the tracker gets SIGKILL once its first
 #      checkpoint exists, the mapper once its own exists and the tracker has resumed, the
 #      renderer once the mapper has resumed, the recorder once the renderer was restarted; the
@@ -117,8 +118,11 @@ for name in clean drops kill; do
       && enough=1
   check "[ $enough = 1 ]" \
       "the renderer holds ${b_renderer:-?} of the mapper's ${b_mapper:-?} blocks (at least 95%)"
-  sed -n 's/^radslam-renderer: final field version [0-9]*, [0-9]* blocks, \(.*\)/    renderer: \1/p' \
-      "$dir/logs/renderer.log"
+  renderer_state=$(sed -n 's/^radslam-renderer: final field version [0-9]*, [0-9]* blocks, \(.*\)/\1/p' \
+      "$dir/logs/renderer.log" | tail -n 1)
+  # Exact, not only at the same version: lost chunks of its snapshots were sent again.
+  check "[[ '$renderer_state' == 'every update applied'* ]]" \
+      "the renderer's replica is exact: ${renderer_state:-no final line}"
 done
 drops=$(cat "$work"/drops/logs/*.log | grep -c 'fault injection: dropped')
 check "[ $drops -gt 0 ]" "messages were dropped in run 'drops' ($drops logged)"

@@ -132,14 +132,72 @@ TEST(FieldUpdates, SnapshotInChunksWhileTrainingGoesOn) {
   ASSERT_EQ(applyFieldUpdate(catch_up, &replica, &error), ApplyResult::kApplied) << error;
   EXPECT_TRUE(replica.sameContent(mapper.field()));
 
-  // A lost chunk abandons the snapshot; the next one starts over.
+  // Lost chunks are asked for again and sent with their content then; the chunks of another
+  // snapshot start over.
   SnapshotSender again = mapper.makeSnapshotSender(8, 10);
   SnapshotAssembler lossy;
+  std::vector<int> lost;
+  for (int i = 0; !again.done(); ++i) {
+    const FieldUpdate chunk = again.next();
+    if (i == 1 || i == again.chunkCount() - 1) {
+      lost.push_back(chunk.chunk_index);
+      continue;
+    }
+    ASSERT_EQ(lossy.add(chunk, &error), SnapshotAssembler::Result::kIncomplete) << error;
+    mapper.train(1);
+  }
+  EXPECT_TRUE(lossy.inProgress());
+  EXPECT_EQ(lossy.snapshotId(), 8);
+  EXPECT_EQ(lossy.missing(), lost);
+  EXPECT_EQ(again.resend({lost[0], lost[0], -1, again.chunkCount()}), 1);
+  EXPECT_EQ(again.resend(lost), 1);  // lost[0] is queued already
+  ASSERT_FALSE(again.done());
   ASSERT_EQ(lossy.add(again.next(), &error), SnapshotAssembler::Result::kIncomplete) << error;
-  again.next();  // lost
-  EXPECT_EQ(lossy.add(again.next(), &error), SnapshotAssembler::Result::kLost);
-  EXPECT_NE(error.find("expected chunk 1"), std::string::npos) << error;
+  EXPECT_EQ(lossy.missing(), std::vector<int>{lost[1]});
+  const int64_t assembled_version = mapper.field().version();
+  ASSERT_EQ(lossy.add(again.next(), &error), SnapshotAssembler::Result::kComplete) << error;
+  EXPECT_TRUE(again.done());
   EXPECT_FALSE(lossy.inProgress());
+  Field resent = std::move(lossy.field());
+  EXPECT_EQ(resent.version(), assembled_version);
+  EXPECT_EQ(again.version(), assembled_version);
+  ASSERT_EQ(applyFieldUpdate(mapper.makeUpdate(again.version()), &resent, &error),
+            ApplyResult::kApplied)
+      << error;
+  EXPECT_TRUE(resent.sameContent(mapper.field()));
+
+  SnapshotSender first = mapper.makeSnapshotSender(9, 10);
+  SnapshotSender second = mapper.makeSnapshotSender(10, 10);
+  SnapshotAssembler switching;
+  ASSERT_EQ(switching.add(first.next(), &error), SnapshotAssembler::Result::kIncomplete);
+  second.next();  // lost
+  ASSERT_EQ(switching.add(second.next(), &error), SnapshotAssembler::Result::kIncomplete);
+  EXPECT_EQ(switching.snapshotId(), 10);
+  EXPECT_EQ(switching.missing().front(), 0);
+  EXPECT_EQ(switching.missing().size(), static_cast<size_t>(second.chunkCount() - 1));
+  FieldUpdate bad = second.next();
+  bad.chunk_index = bad.chunk_count;
+  EXPECT_EQ(switching.add(bad, &error), SnapshotAssembler::Result::kInvalid);
+  EXPECT_NE(error.find("is not a chunk"), std::string::npos) << error;
+}
+
+TEST(FieldUpdates, SnapshotChunksArgument) {
+  int64_t id = 0;
+  std::vector<int> chunks;
+  EXPECT_EQ(snapshotChunksArgument(1733490000123456, {3, 23, 43}),
+            "chunks 1733490000123456 3,23,43");
+  ASSERT_TRUE(parseSnapshotChunksArgument("chunks 1733490000123456 3,23,43", &id, &chunks));
+  EXPECT_EQ(id, 1733490000123456);
+  EXPECT_EQ(chunks, (std::vector<int>{3, 23, 43}));
+  for (const char* bad :
+       {"renderer", "", "chunks", "chunks 7", "chunks 7 ", "chunks -1 3", "chunks 7 3,,4",
+        "chunks 7 3,x", "chunks 7 -3", "chunks 7 3 more", "snapshot 7 3"}) {
+    id = 0;
+    chunks.clear();
+    EXPECT_FALSE(parseSnapshotChunksArgument(bad, &id, &chunks)) << bad;
+    EXPECT_EQ(id, 0) << bad;
+    EXPECT_TRUE(chunks.empty()) << bad;
+  }
 }
 
 TEST(FieldUpdates, StaleGapAndInvalidUpdates) {

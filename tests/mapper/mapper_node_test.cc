@@ -345,16 +345,20 @@ TEST(MapperNode, AfterTheFinalFlushServesASnapshotToARendererThatLostTheLastUpda
   Bus bus("memq://", "SYNCTEST_", "test");
   MapperNodeParams params = nodeParams();
   params.final_sync_s = 30;
+  params.max_blocks_per_update = 50;  // snapshots of about ten chunks
   MapperNode node(&bus, params, "");
   bus.publish(channel::kKeyframe, keyframeOf(scene, 0, 0));
   bus.publish(channel::kKeyframe, keyframeOf(scene, 10, 1));
   for (int i = 0; i < 20; ++i) ASSERT_TRUE(node.spinOnce(5));
 
   // A renderer that lost every update: it learns so from the mapper's final STATUS, asks for a
-  // snapshot then, and reports its version as it goes.
+  // snapshot then, and reports its version as it goes. It also loses every third chunk of the
+  // snapshot the first time and asks for those again once the last one arrived.
   Field replica;
   SnapshotAssembler assembler;
   bool asked = false;
+  int chunks_asked = 0, chunks_resent = 0, max_chunk_count = 0;
+  std::set<int> seen;
   const auto report = [&] {
     Status s;
     s.process = "renderer";
@@ -376,8 +380,21 @@ TEST(MapperNode, AfterTheFinalFlushServesASnapshotToARendererThatLostTheLastUpda
     if (!asked) return;  // lost
     std::string error;
     if (u.is_snapshot) {
+      const bool again = !seen.insert(u.chunk_index).second;
+      chunks_resent += again;
+      max_chunk_count = std::max(max_chunk_count, u.chunk_count);
+      if (!again && u.chunk_index % 3 == 1 && u.chunk_index < u.chunk_count - 1) return;  // lost
       if (assembler.add(u, &error) == SnapshotAssembler::Result::kComplete)
         replica = std::move(assembler.field());
+      if (!again && u.chunk_index == u.chunk_count - 1) {
+        const std::vector<int> missing = assembler.missing();
+        chunks_asked += static_cast<int>(missing.size());
+        Control c;
+        c.command = ControlCommand::kSnapshot;
+        c.target = "mapper";
+        c.argument = snapshotChunksArgument(u.snapshot_id, missing);
+        bus.publish(channel::kControl, c);
+      }
     } else if (replica.initialized()) {
       EXPECT_EQ(applyFieldUpdate(u, &replica, &error), ApplyResult::kApplied) << error;
     }
@@ -391,6 +408,9 @@ TEST(MapperNode, AfterTheFinalFlushServesASnapshotToARendererThatLostTheLastUpda
   EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
             params.final_sync_s);
   EXPECT_TRUE(asked);
+  EXPECT_GE(max_chunk_count, 5);
+  EXPECT_GT(chunks_asked, 0);
+  EXPECT_EQ(chunks_resent, chunks_asked);  // only those, once
   ASSERT_TRUE(replica.initialized());
   EXPECT_EQ(replica.version(), node.mapper().field().version());
   EXPECT_TRUE(replica.sameContent(node.mapper().field()));

@@ -79,7 +79,8 @@ TEST(FieldReplica, LateJoinerConvergesThroughASnapshot) {
 
   FieldReplica b;
   std::vector<std::string> requests;
-  b.setSnapshotRequest([&](const std::string& why) { requests.push_back(why); });
+  b.setSnapshotRequest(
+      [&](const FieldReplica::SnapshotAsk& ask) { requests.push_back(ask.reason); });
   // Joins late: update k - 1 skips the earlier ones; its blocks are shown all the same and the
   // updates that follow it apply, but only the snapshot makes the replica exact.
   EXPECT_EQ(b.apply(updates[k - 1], &error), ApplyResult::kGap);
@@ -107,7 +108,7 @@ TEST(FieldReplica, GapInTheMiddleAppliesTheBlocksAndAsksForASnapshot) {
   auto mapper = makeDemoMapper(options);
   FieldReplica replica;
   int requests = 0;
-  replica.setSnapshotRequest([&](const std::string&) { ++requests; });
+  replica.setSnapshotRequest([&](const FieldReplica::SnapshotAsk&) { ++requests; });
   std::string error;
   const FieldUpdate u1 = mapper->makeUpdate(0);
   mapper->train(2);
@@ -129,49 +130,81 @@ TEST(FieldReplica, GapInTheMiddleAppliesTheBlocksAndAsksForASnapshot) {
   EXPECT_TRUE(replica.field().sameContent(mapper->field()));
 }
 
-TEST(FieldReplica, ChunkedSnapshotAfterALostChunkAndAStalledRequest) {
+TEST(FieldReplica, ChunkedSnapshotWithLostChunksAndAStalledRequest) {
   DemoFieldOptions options;
   options.train_steps = 0;
   auto mapper = makeDemoMapper(options);
   FieldReplica replica;
-  std::vector<std::string> requests;
-  replica.setSnapshotRequest([&](const std::string& why) { requests.push_back(why); });
+  std::vector<FieldReplica::SnapshotAsk> requests;
+  replica.setSnapshotRequest(
+      [&](const FieldReplica::SnapshotAsk& ask) { requests.push_back(ask); });
   std::string error;
   mapper->train(2);
   const FieldUpdate u1 = mapper->makeUpdate(0);
   mapper->train(2);
   const FieldUpdate u2 = mapper->makeUpdate(u1.version);
-  replica.retryStalledSnapshot(100.0, 15.0);
+  replica.retryStalledSnapshot(100.0, 5.0);
   EXPECT_EQ(replica.apply(u2, &error), ApplyResult::kGap);  // joined late
   ASSERT_EQ(requests.size(), 1u);
-  // The first snapshot loses a chunk: the replica asks for the next one at once.
-  SnapshotSender lossy = mapper->makeSnapshotSender(1, 20);
-  ASSERT_GT(lossy.chunkCount(), 2);
-  const FieldUpdate first = lossy.next();
-  EXPECT_EQ(replica.apply(first, &error), ApplyResult::kPartial);
-  lossy.next();
-  const FieldUpdate third = lossy.next();
-  EXPECT_EQ(replica.apply(third, &error), ApplyResult::kGap);
+  EXPECT_TRUE(requests[0].chunks.empty());  // a whole snapshot
+  // No snapshot for longer than the stall time (a lost request): asked again.
+  replica.retryStalledSnapshot(104.0, 5.0);
+  EXPECT_EQ(requests.size(), 1u);
+  replica.retryStalledSnapshot(106.0, 5.0);
+  ASSERT_EQ(requests.size(), 2u);
+  EXPECT_TRUE(requests[1].chunks.empty());
+
+  // Every sixth chunk is lost: each loss is asked for as soon as a later chunk shows it.
+  SnapshotSender sender = mapper->makeSnapshotSender(1, 10);
+  ASSERT_GT(sender.chunkCount(), 8);
+  std::vector<FieldUpdate> arrived;
+  std::vector<int> lost;
+  for (int i = 0; !sender.done(); ++i) {
+    FieldUpdate chunk = sender.next();
+    if (i % 6 == 2 || chunk.chunk_index == sender.chunkCount() - 1) {
+      lost.push_back(chunk.chunk_index);
+      continue;
+    }
+    EXPECT_EQ(replica.apply(chunk, &error), ApplyResult::kPartial) << error;
+    arrived.push_back(std::move(chunk));
+    mapper->train(1);  // the field changes while the chunks are on their way
+  }
   EXPECT_TRUE(replica.waitingForSnapshot());
-  EXPECT_EQ(requests.size(), 2u);
-  // The chunks that arrived repaired the live field all the same.
-  for (const FieldUpdate* chunk : {&first, &third}) {
-    for (const FieldBlock& b : chunk->blocks) {
+  std::vector<int> asked;
+  for (size_t r = 2; r < requests.size(); ++r) {
+    EXPECT_EQ(requests[r].snapshot_id, 1);
+    asked.insert(asked.end(), requests[r].chunks.begin(), requests[r].chunks.end());
+  }
+  // The last chunk's loss shows no later chunk: only the stall asks for it.
+  EXPECT_EQ(asked, std::vector<int>(lost.begin(), lost.end() - 1));
+  // The chunks that arrived repaired the live field already.
+  for (const FieldUpdate& chunk : arrived) {
+    for (const FieldBlock& b : chunk.blocks) {
       const int id = replica.field().findBlock(b.level, b.index.x(), b.index.y(), b.index.z());
       ASSERT_GE(id, 0);
       EXPECT_EQ(std::memcmp(replica.field().blockData(b.level, id), b.data.data(), b.data.size()),
                 0);
     }
   }
-  // No snapshot for longer than the stall time (a lost request): asked again.
-  replica.retryStalledSnapshot(110.0, 15.0);
-  EXPECT_EQ(requests.size(), 2u);
-  replica.retryStalledSnapshot(130.0, 15.0);
-  EXPECT_EQ(requests.size(), 3u);
-  // A complete snapshot, then the update since its version: the mapper's field exactly.
-  SnapshotSender sender = mapper->makeSnapshotSender(2, 20);
+  const size_t before_stall = requests.size();
+  replica.retryStalledSnapshot(112.0, 5.0);
+  ASSERT_EQ(requests.size(), before_stall + 1);
+  EXPECT_EQ(requests.back().chunks, lost);  // every missing chunk again
+
+  // The mapper sends them again; one more is lost and asked for when the next one arrives.
+  sender.resend(requests.back().chunks);
   ApplyResult last = ApplyResult::kPartial;
-  while (!sender.done()) last = replica.apply(sender.next(), &error);
+  for (int i = 0; !sender.done(); ++i) {
+    const FieldUpdate chunk = sender.next();
+    if (i == 0) {
+      sender.resend({chunk.chunk_index});  // lost; the replica asks for it below
+      continue;
+    }
+    last = replica.apply(chunk, &error);
+    if (i == 1) {
+      EXPECT_EQ(requests.back().chunks, std::vector<int>{lost[0]});
+    }
+  }
   EXPECT_EQ(last, ApplyResult::kApplied) << error;
   EXPECT_FALSE(replica.waitingForSnapshot());
   mapper->train(2);
