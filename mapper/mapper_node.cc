@@ -150,9 +150,14 @@ void MapperNode::onControl(const Control& control) {
         }
         // (Another snapshot on its way serves the replica as well.)
         if (snapshot_) {
-          if (snapshot_->id() == id) snapshot_->resend(chunks);
+          if (snapshot_->id() == id) {
+            std::cerr << "radslam-mapper: sending " << snapshot_->resend(chunks) << " of "
+                      << chunks.size() << " chunk(s) asked for of snapshot " << id << " again\n";
+          }
           break;
         }
+        std::cerr << "radslam-mapper: chunks of snapshot " << id
+                  << " asked for, which is not the last one: a new snapshot\n";
       }
       snapshot_requested_ = true;
       break;
@@ -521,6 +526,7 @@ void MapperNode::awaitReplicas() {
   constexpr double kRecentS = 3.0;  // a renderer silent for this much listening time is gone
   if (!mapper_.field().initialized()) return;
   const double t0 = now();
+  const int64_t flushed_version = mapper_.field().version();
   const auto lagging = [&] {
     // (A snapshot may leave blocks to send after it: the version to reach is the current one.)
     const int64_t final_version = mapper_.field().version();
@@ -547,6 +553,11 @@ void MapperNode::awaitReplicas() {
   } else if (now() - t0 > 1.0) {
     std::cerr << "radslam-mapper: the renderers heard from are at the final field version after "
               << now() - t0 << " s\n";
+  }
+  // A snapshot's blocks committed after their chunk went out are sent again as deltas.
+  if (mapper_.field().version() != flushed_version) {
+    std::cerr << "radslam-mapper: final field version " << mapper_.field().version() << ", "
+              << mapper_.field().totalBlocks() << " blocks, after the snapshots served\n";
   }
 }
 
