@@ -7,6 +7,7 @@
 #include <memory>
 #include <sstream>
 #include <stdexcept>
+#include <tuple>
 
 #include <zstd.h>
 
@@ -136,6 +137,31 @@ FieldUpdate makeFieldSnapshot(Field* field) {
   return u;
 }
 
+FieldUpdate makeFieldCatchUp(Field* field, int64_t since_version, int max_blocks) {
+  checkHost();
+  int changed = 0, newest_level = -1, newest_block = -1;
+  int64_t newest = -1;
+  for (int l = 0; l < field->numLevels(); ++l) {
+    for (int b = 0; b < field->numBlocks(l); ++b) {
+      const int64_t v = field->blockVersion(l, b);
+      if (v <= since_version) continue;
+      ++changed;
+      if (v > newest) std::tie(newest, newest_level, newest_block) = std::tuple(v, l, b);
+    }
+  }
+  if (changed > max_blocks) {
+    FieldUpdate u = header(*field);
+    u.base_version = since_version;
+    return u;
+  }
+  // A new version even when nothing is pending: the replica may be at the current one.
+  for (int l = 0; newest_level < 0 && l < field->numLevels(); ++l) {
+    if (field->numBlocks(l) > 0) std::tie(newest_level, newest_block) = std::pair(l, 0);
+  }
+  if (newest_level >= 0) field->markChanged(newest_level, newest_block);
+  return makeFieldUpdate(field, since_version, max_blocks);
+}
+
 SnapshotSender::SnapshotSender(Field* field, int64_t snapshot_id, int max_blocks)
     : field_(field), snapshot_id_(snapshot_id), max_blocks_(std::max(1, max_blocks)) {
   checkHost();
@@ -240,6 +266,20 @@ std::vector<int> SnapshotAssembler::missing() const {
   for (size_t i = 0; i < received_.size(); ++i)
     if (!received_[i]) out.push_back(static_cast<int>(i));
   return out;
+}
+
+std::string catchUpArgument(int64_t since_version) {
+  return "since " + std::to_string(since_version);
+}
+
+bool parseCatchUpArgument(const std::string& argument, int64_t* since_version) {
+  std::istringstream in(argument);
+  std::string word;
+  long long version = -1;
+  if (!(in >> word >> version) || word != "since" || version < 0 || !(in >> std::ws).eof())
+    return false;
+  *since_version = version;
+  return true;
 }
 
 std::string snapshotChunksArgument(int64_t snapshot_id, const std::vector<int>& chunks) {

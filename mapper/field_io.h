@@ -53,6 +53,12 @@ void encodeFieldUpdate(FieldEncoding encoding, FieldUpdate* update);
 FieldUpdate makeFieldUpdate(Field* field, int64_t since_version, int max_blocks = 0);
 /// Commits every pending change and returns all blocks (one message).
 FieldUpdate makeFieldSnapshot(Field* field);
+/// A catch-up for a replica exact at since_version that lost updates after it: the blocks
+/// committed after since_version, as an update based there, at a new version (a block is
+/// committed again if nothing else is pending), so that it also follows every later update
+/// the replica applied. Any replica at since_version or later applies it. Empty (no blocks)
+/// when more than max_blocks blocks changed since: a snapshot is the cheaper repair then.
+FieldUpdate makeFieldCatchUp(Field* field, int64_t since_version, int max_blocks);
 
 /// A snapshot in chunks of at most max_blocks blocks each: the block list is taken (after a
 /// commit) at construction, each chunk reads the blocks' values when it is made. The field must
@@ -112,6 +118,11 @@ class SnapshotAssembler {
   int received_count_ = 0;
 };
 
+/// CONTROL SNAPSHOT argument asking for the updates since a version (makeFieldCatchUp):
+/// "since VERSION".
+std::string catchUpArgument(int64_t since_version);
+/// Parses catchUpArgument's format; false (output unchanged) for anything else.
+bool parseCatchUpArgument(const std::string& argument, int64_t* since_version);
 /// CONTROL SNAPSHOT argument asking for chunks of a snapshot again: "chunks ID I,J,...".
 /// Any other argument asks for a whole new snapshot.
 std::string snapshotChunksArgument(int64_t snapshot_id, const std::vector<int>& chunks);

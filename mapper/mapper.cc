@@ -502,6 +502,11 @@ FieldUpdate Mapper::makeUpdate(int64_t since_version, int max_blocks) {
   return makeFieldUpdate(&field_, since_version, max_blocks);
 }
 
+FieldUpdate Mapper::makeCatchUp(int64_t since_version, int max_blocks) {
+  if (!field_.initialized()) return makeUpdate(since_version);
+  return makeFieldCatchUp(&field_, since_version, max_blocks);
+}
+
 FieldUpdate Mapper::makeSnapshot() {
   if (!field_.initialized()) {
     FieldUpdate u;

@@ -101,6 +101,8 @@ class Mapper {
   /// Blocks changed since `since_version` (commits at most max_blocks pending changes first,
   /// <= 0 = all); see mapper/field_io.h.
   FieldUpdate makeUpdate(int64_t since_version, int max_blocks = 0);
+  /// makeFieldCatchUp on the field (mapper/field_io.h); no blocks without a field.
+  FieldUpdate makeCatchUp(int64_t since_version, int max_blocks);
   FieldUpdate makeSnapshot();
   /// A snapshot in chunks of at most max_blocks blocks (mapper/field_io.h). The field must be
   /// initialized; the sender is invalid after reset().

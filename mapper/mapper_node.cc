@@ -5,6 +5,7 @@
 #include <deque>
 #include <filesystem>
 #include <iostream>
+#include <limits>
 #include <thread>
 
 #include "common/cli.h"
@@ -140,7 +141,14 @@ void MapperNode::onControl(const Control& control) {
       save_request_ = control.argument;
       break;
     case ControlCommand::kSnapshot: {
-      // Lost chunks of the last snapshot go out again at once; a whole one waits for its turn.
+      // A catch-up and lost chunks of the last snapshot go out at once; a whole snapshot waits
+      // for its turn.
+      int64_t since = -1;
+      if (parseCatchUpArgument(control.argument, &since) && since >= catch_up_floor_ &&
+          mapper_.field().initialized() && since <= mapper_.field().version()) {
+        catch_up_since_ = catch_up_since_ < 0 ? since : std::min(catch_up_since_, since);
+        break;
+      }
       int64_t id = -1;
       std::vector<int> chunks;
       if (parseSnapshotChunksArgument(control.argument, &id, &chunks)) {
@@ -171,6 +179,8 @@ void MapperNode::onControl(const Control& control) {
       missing_requests_.clear();
       snapshot_.reset();  // its blocks are gone
       sent_snapshot_.reset();
+      catch_up_since_ = -1;
+      catch_up_floor_ = std::numeric_limits<int64_t>::max();  // replicas hold another field
       mapper_.reset();
       queue_.clear();
       frame_poses_.clear();
@@ -225,6 +235,7 @@ void MapperNode::resume(const std::string& checkpoint) {
   // Replicas are ahead of or apart from the resumed field: the first delta is based on the new
   // version (a gap to them) and a snapshot makes them equal to it.
   delta_base_ = mapper_.field().initialized() ? mapper_.field().version() : 0;
+  catch_up_floor_ = delta_base_;
   snapshot_requested_ = true;
   std::cerr << "radslam-mapper: resumed from " << checkpoint << ": " << mapper_.keyframes().size()
             << " keyframes, " << (mapper_.field().initialized() ? mapper_.field().totalBlocks() : 0)
@@ -248,6 +259,7 @@ void MapperNode::publishUpdate() {
     chunks -= sent;
     blocks -= sent;
   }
+  if (catch_up_since_ >= 0 && field_pacer_->ready()) blocks -= publishCatchUp();
   while (blocks > 0 && field_pacer_->ready()) {
     FieldUpdate u = mapper_.makeUpdate(delta_base_, std::min(blocks, blocksPerMessage()));
     if (u.blocks.empty()) return;
@@ -264,6 +276,7 @@ bool MapperNode::publishFlushMessage() {
     publishSnapshotChunk();
     return true;
   }
+  if (catch_up_since_ >= 0 && publishCatchUp() > 0) return true;
   FieldUpdate u = mapper_.makeUpdate(delta_base_, blocksPerMessage());
   if (!u.blocks.empty()) {
     publishField(&u);
@@ -319,6 +332,21 @@ void MapperNode::startSnapshot() {
   // field), and the live view of the replicas that do not need it keeps moving.
   sent_snapshot_.reset();
   snapshot_.emplace(mapper_.makeSnapshotSender(++snapshot_seq_, blocksPerMessage()));
+}
+
+int MapperNode::publishCatchUp() {
+  const int64_t since = catch_up_since_;
+  catch_up_since_ = -1;
+  FieldUpdate u = mapper_.makeCatchUp(since, blocksPerMessage());
+  if (u.blocks.empty()) {
+    snapshot_requested_ = true;  // more changed since than one message holds
+    return 0;
+  }
+  std::cerr << "radslam-mapper: sending the " << u.blocks.size()
+            << " blocks changed since field version " << since << " (a renderer lost updates)\n";
+  publishField(&u);
+  delta_base_ = u.version;
+  return static_cast<int>(u.blocks.size());
 }
 
 int MapperNode::publishSnapshotChunk() {
@@ -541,7 +569,7 @@ void MapperNode::awaitReplicas() {
     const int handled = bus_->handle(50);
     listen_s_ += now() - t;
     if (handled < 0) break;
-    if (snapshot_requested_ || snapshot_) {
+    if (snapshot_requested_ || snapshot_ || catch_up_since_ >= 0) {
       flushing_ = true;
       flushField(true);
     }

@@ -79,6 +79,9 @@ class MapperNode {
   /// field yet, sends the empty one.
   void startSnapshot();
   int publishSnapshotChunk();  // returns its blocks
+  /// Publishes the catch-up asked for, or asks for a snapshot when it would be too large;
+  /// returns its blocks.
+  int publishCatchUp();
   // Blocks per FIELD message: at most max_blocks_per_update, and at most a quarter of a
   // second's FIELD limit even uncompressed. A message is one unit for the pacer, so its size
   // is how far a receiver that sees messages bunched can measure past the limit (250 trained
@@ -108,7 +111,11 @@ class MapperNode {
   bool snapshot_requested_ = false;
   std::optional<SnapshotSender> snapshot_;       // chunks to send
   std::optional<SnapshotSender> sent_snapshot_;  // the last one sent, for chunks asked again
-  bool flushing_ = false;                        // the final flush is under way
+  // A catch-up asked for (the oldest version a replica is exact at; -1 = none) and the oldest
+  // version this field's history can serve one from (a resumed or reset field starts anew).
+  int64_t catch_up_since_ = -1;
+  int64_t catch_up_floor_ = 0;
+  bool flushing_ = false;  // the final flush is under way
   // Snapshot ids: from the start time (us), so that a restarted mapper's snapshots differ
   // from those replicas may still be assembling.
   int64_t snapshot_seq_ = 0;

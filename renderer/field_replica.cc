@@ -15,6 +15,7 @@ ApplyResult FieldReplica::apply(const FieldUpdate& update, std::string* error) {
       waiting_snapshot_ = false;
       field_ = Field();
       version_empty_ = update.version;
+      exact_version_ = update.version;
       return ApplyResult::kApplied;
     }
     return ApplyResult::kStale;
@@ -38,6 +39,7 @@ ApplyResult FieldReplica::apply(const FieldUpdate& update, std::string* error) {
         field_ = std::move(assembler_.field());
         assembler_.field() = Field();
         waiting_snapshot_ = false;
+        exact_version_ = field_.version();
         asked_order_.clear();
         return ApplyResult::kApplied;
       case SnapshotAssembler::Result::kInvalid:
@@ -50,16 +52,22 @@ ApplyResult FieldReplica::apply(const FieldUpdate& update, std::string* error) {
   const ApplyResult result = applyFieldUpdate(update, &field_, &why, GapPolicy::kApply);
   switch (result) {
     case ApplyResult::kApplied:
-      if (update.is_snapshot) waiting_snapshot_ = false;
+      // An update based where the replica was last exact (the next one, or a catch-up after
+      // lost ones) leaves it exact.
+      if (update.is_snapshot || (exact_version_ >= 0 && update.base_version <= exact_version_)) {
+        exact_version_ = update.version;
+        if (!assembler_.inProgress()) waiting_snapshot_ = false;
+      }
       break;
     case ApplyResult::kGap:
       ++gaps_;
-      if (!waiting_snapshot_) requestSnapshot(why);
+      if (!waiting_snapshot_) requestRepair(why);
       break;
     case ApplyResult::kInvalid:
       // A geometry change (mapper restarted with other voxel sizes) needs a snapshot too.
-      if (!waiting_snapshot_ && why.find("needs a snapshot") != std::string::npos) {
-        requestSnapshot(why);
+      if (why.find("needs a snapshot") != std::string::npos) {
+        exact_version_ = -1;
+        if (!waiting_snapshot_) requestRepair(why);
       }
       break;
     case ApplyResult::kStale:
@@ -70,10 +78,13 @@ ApplyResult FieldReplica::apply(const FieldUpdate& update, std::string* error) {
   return result;
 }
 
-void FieldReplica::requestSnapshot(const std::string& reason) {
+void FieldReplica::requestRepair(const std::string& reason) {
   waiting_snapshot_ = true;
   last_progress_s_ = now_s_;
-  if (request_snapshot_) request_snapshot_(SnapshotAsk{reason, -1, {}});
+  SnapshotAsk ask;
+  ask.reason = reason;
+  ask.since_version = exact_version_;
+  if (request_snapshot_) request_snapshot_(ask);
 }
 
 void FieldReplica::requestLostChunks(const FieldUpdate& chunk) {
@@ -96,12 +107,16 @@ void FieldReplica::requestChunks(const std::vector<int>& chunks, const std::stri
   ++gaps_;
   last_progress_s_ = now_s_;
   for (int c : chunks) asked_order_[c] = ++asked_count_;
-  if (request_snapshot_) request_snapshot_(SnapshotAsk{reason, assembler_.snapshotId(), chunks});
+  SnapshotAsk ask;
+  ask.reason = reason;
+  ask.snapshot_id = assembler_.snapshotId();
+  ask.chunks = chunks;
+  if (request_snapshot_) request_snapshot_(ask);
 }
 
 void FieldReplica::missedUpdate(const std::string& reason) {
   ++gaps_;
-  if (!waiting_snapshot_) requestSnapshot(reason);
+  if (!waiting_snapshot_) requestRepair(reason);
 }
 
 void FieldReplica::retryStalledSnapshot(double now_s, double stall_s) {
@@ -112,7 +127,7 @@ void FieldReplica::retryStalledSnapshot(double now_s, double stall_s) {
   if (assembler_.inProgress()) {
     requestChunks(assembler_.missing(), reason);
   } else {
-    requestSnapshot(reason);
+    requestRepair(reason);
   }
 }
 

@@ -32,10 +32,13 @@ struct ReplicaRenderParams {
 class FieldReplica {
  public:
   /// What the replica asks the mapper for when an update cannot be applied because earlier
-  /// ones are missing (late join, lost message): a whole snapshot (chunks empty), or the
-  /// chunks of snapshot_id it lost. `reason` says why.
+  /// ones are missing (late join, lost message): the chunks of snapshot_id it lost (chunks not
+  /// empty), else the blocks changed since since_version, where it was last exact (a catch-up,
+  /// mapper/field_io.h makeFieldCatchUp; the mapper sends a snapshot when that is more), or a
+  /// whole snapshot (since_version -1). `reason` says why.
   struct SnapshotAsk {
     std::string reason;
+    int64_t since_version = -1;
     int64_t snapshot_id = -1;
     std::vector<int> chunks;
   };
@@ -46,9 +49,10 @@ class FieldReplica {
 
   /// Applies an update in version order or a snapshot whole. A non-snapshot update whose
   /// base_version is ahead of the replica (a late join, a lost message) is a gap: its blocks are
-  /// applied all the same (GapPolicy::kApply, so a live view stays live) and a snapshot is asked
-  /// for (once until one arrives), which makes the replica exact again. A snapshot chunk past
-  /// chunks that did not come asks for those again at once. Returns the result; *error says
+  /// applied all the same (GapPolicy::kApply, so a live view stays live) and a catch-up since
+  /// the version where it was last exact is asked for (once until it or a snapshot arrives),
+  /// which makes the replica exact again. A snapshot chunk past chunks that did not come asks
+  /// for those again at once. Returns the result; *error says
   /// what was wrong on kGap and kInvalid.
   ApplyResult apply(const FieldUpdate& update, std::string* error = nullptr);
 
@@ -91,12 +95,15 @@ class FieldReplica {
   VolumeRenderer renderer_;
   SnapshotRequest request_snapshot_;
   int64_t version_empty_ = 0;  // version of an (empty) replica before the field exists
-  void requestSnapshot(const std::string& reason);
+  void requestRepair(const std::string& reason);
   /// Asks for the chunks of the snapshot in progress that a chunk just received shows lost.
   void requestLostChunks(const FieldUpdate& chunk);
   void requestChunks(const std::vector<int>& chunks, const std::string& reason);
 
-  bool waiting_snapshot_ = false;
+  bool waiting_snapshot_ = false;  // lost updates: waiting for a catch-up or a snapshot
+  // Version at which the replica was last exact (every update since applied; -1: never, or
+  // its geometry changed). An empty replica is exact at 0, where a mapper starts.
+  int64_t exact_version_ = 0;
   SnapshotAssembler assembler_;
   // Chunks of the snapshot in progress asked for again, by when they were last asked for.
   std::map<int, int64_t> asked_order_;

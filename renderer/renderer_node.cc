@@ -111,8 +111,14 @@ RendererNode::RendererNode(Bus* bus, RendererParams params, std::string out_dir)
     c.target = "mapper";
     if (ask.chunks.empty()) {
       ++snapshots_requested_;
-      std::cerr << "radslam-renderer: asking the mapper for a snapshot: " << ask.reason << "\n";
-      c.argument = "renderer";
+      if (ask.since_version >= 0) {
+        c.argument = catchUpArgument(ask.since_version);
+        std::cerr << "radslam-renderer: asking the mapper for the field since version "
+                  << ask.since_version << ": " << ask.reason << "\n";
+      } else {
+        c.argument = "renderer";
+        std::cerr << "radslam-renderer: asking the mapper for a snapshot: " << ask.reason << "\n";
+      }
     } else {
       ++chunks_requested_;
       c.argument = snapshotChunksArgument(ask.snapshot_id, ask.chunks);

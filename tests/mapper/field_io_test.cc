@@ -200,6 +200,56 @@ TEST(FieldUpdates, SnapshotChunksArgument) {
   }
 }
 
+TEST(FieldUpdates, CatchUpRepairsAReplicaThatLostUpdates) {
+  const SyntheticScene scene = tinyRoom();
+  Mapper mapper(smallParams());
+  mapper.addKeyframe(keyframeOf(scene, 0, 0));
+  const FieldUpdate u1 = mapper.makeUpdate(0);
+  mapper.train(1);
+  const FieldUpdate u2 = mapper.makeUpdate(u1.version);  // lost
+  mapper.train(1);
+  const FieldUpdate u3 = mapper.makeUpdate(u2.version);
+  std::string error;
+  Field lossy, in_step;
+  for (const FieldUpdate* u : {&u1, &u2, &u3})
+    ASSERT_EQ(applyFieldUpdate(*u, &in_step, &error), ApplyResult::kApplied) << error;
+  ASSERT_EQ(applyFieldUpdate(u1, &lossy, &error), ApplyResult::kApplied) << error;
+  ASSERT_EQ(applyFieldUpdate(u3, &lossy, &error, GapPolicy::kApply), ApplyResult::kGap);
+  ASSERT_EQ(lossy.version(), mapper.field().version());  // at the latest, but not exact
+  ASSERT_FALSE(lossy.sameContent(mapper.field()));
+
+  // Nothing is pending: the catch-up still takes a new version, so both replicas apply it.
+  const int total = static_cast<int>(mapper.field().totalBlocks());
+  const FieldUpdate catch_up = mapper.makeCatchUp(u1.version, total);
+  EXPECT_EQ(catch_up.base_version, u1.version);
+  EXPECT_EQ(catch_up.version, u3.version + 1);
+  ASSERT_FALSE(catch_up.blocks.empty());
+  EXPECT_LT(catch_up.blocks.size(), static_cast<size_t>(total));
+  ASSERT_EQ(applyFieldUpdate(catch_up, &lossy, &error), ApplyResult::kApplied) << error;
+  ASSERT_EQ(applyFieldUpdate(catch_up, &in_step, &error), ApplyResult::kApplied) << error;
+  EXPECT_TRUE(lossy.sameContent(mapper.field()));
+  EXPECT_TRUE(in_step.sameContent(mapper.field()));
+  // Updates go on from the catch-up's version.
+  mapper.train(1);
+  const FieldUpdate u4 = mapper.makeUpdate(catch_up.version);
+  ASSERT_EQ(applyFieldUpdate(u4, &lossy, &error), ApplyResult::kApplied) << error;
+  EXPECT_TRUE(lossy.sameContent(mapper.field()));
+  // More blocks changed since than one message holds: none (a snapshot is asked for then).
+  const int64_t before = mapper.field().version();
+  EXPECT_TRUE(mapper.makeCatchUp(0, 3).blocks.empty());
+  EXPECT_EQ(mapper.field().version(), before);
+
+  int64_t since = -1;
+  EXPECT_EQ(catchUpArgument(42), "since 42");
+  ASSERT_TRUE(parseCatchUpArgument("since 42", &since));
+  EXPECT_EQ(since, 42);
+  for (const char* bad : {"since", "since -1", "since 4x", "since 4 5", "chunks 1 2", ""}) {
+    since = -1;
+    EXPECT_FALSE(parseCatchUpArgument(bad, &since)) << bad;
+    EXPECT_EQ(since, -1) << bad;
+  }
+}
+
 TEST(FieldUpdates, StaleGapAndInvalidUpdates) {
   const SyntheticScene scene = tinyRoom();
   Mapper mapper(smallParams());

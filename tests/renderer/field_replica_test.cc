@@ -130,6 +130,39 @@ TEST(FieldReplica, GapInTheMiddleAppliesTheBlocksAndAsksForASnapshot) {
   EXPECT_TRUE(replica.field().sameContent(mapper->field()));
 }
 
+TEST(FieldReplica, LostUpdateIsRepairedByACatchUp) {
+  DemoFieldOptions options;
+  options.train_steps = 0;
+  auto mapper = makeDemoMapper(options);
+  FieldReplica replica;
+  std::vector<FieldReplica::SnapshotAsk> requests;
+  replica.setSnapshotRequest(
+      [&](const FieldReplica::SnapshotAsk& ask) { requests.push_back(ask); });
+  std::string error;
+  const FieldUpdate u1 = mapper->makeUpdate(0);
+  mapper->train(2);
+  const FieldUpdate u2 = mapper->makeUpdate(u1.version);  // lost
+  mapper->train(2);
+  const FieldUpdate u3 = mapper->makeUpdate(u2.version);
+  ASSERT_EQ(replica.apply(u1, &error), ApplyResult::kApplied) << error;
+  EXPECT_EQ(replica.apply(u3, &error), ApplyResult::kGap);
+  ASSERT_EQ(requests.size(), 1u);
+  EXPECT_EQ(requests[0].since_version, u1.version);  // where it was last exact
+  EXPECT_TRUE(requests[0].chunks.empty());
+  EXPECT_TRUE(replica.waitingForSnapshot());
+  // An update based past the gap does not repair it.
+  mapper->train(2);
+  const FieldUpdate u4 = mapper->makeUpdate(u3.version);
+  ASSERT_EQ(replica.apply(u4, &error), ApplyResult::kApplied) << error;
+  EXPECT_TRUE(replica.waitingForSnapshot());
+  const FieldUpdate catch_up =
+      mapper->makeCatchUp(requests[0].since_version, mapper->field().totalBlocks());
+  ASSERT_EQ(replica.apply(catch_up, &error), ApplyResult::kApplied) << error;
+  EXPECT_FALSE(replica.waitingForSnapshot());
+  EXPECT_TRUE(replica.field().sameContent(mapper->field()));
+  EXPECT_EQ(requests.size(), 1u);
+}
+
 TEST(FieldReplica, ChunkedSnapshotWithLostChunksAndAStalledRequest) {
   DemoFieldOptions options;
   options.train_steps = 0;
