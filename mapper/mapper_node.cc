@@ -582,10 +582,10 @@ void MapperNode::awaitReplicas() {
     std::cerr << "radslam-mapper: the renderers heard from are at the final field version after "
               << now() - t0 << " s\n";
   }
-  // A snapshot's blocks committed after their chunk went out are sent again as deltas.
+  // Catch-ups, and a snapshot's blocks committed after their chunk went out, take new versions.
   if (mapper_.field().version() != flushed_version) {
     std::cerr << "radslam-mapper: final field version " << mapper_.field().version() << ", "
-              << mapper_.field().totalBlocks() << " blocks, after the snapshots served\n";
+              << mapper_.field().totalBlocks() << " blocks, after the renderers were served\n";
   }
 }
 

@@ -432,6 +432,65 @@ TEST(MapperNode, AfterTheFinalFlushServesASnapshotToARendererThatLostTheLastUpda
   EXPECT_TRUE(replica.sameContent(node.mapper().field()));
 }
 
+TEST(MapperNode, AfterTheFinalFlushServesACatchUpToARendererThatLostTheLastUpdate) {
+  const SyntheticScene scene = smallRoom(20);
+  Bus bus("memq://", "CATCHUPTEST_", "test");
+  MapperNodeParams params = nodeParams();
+  params.final_sync_s = 30;
+  MapperNode node(&bus, params, "");
+  bus.publish(channel::kKeyframe, keyframeOf(scene, 0, 0));
+  bus.publish(channel::kKeyframe, keyframeOf(scene, 10, 1));
+
+  // A renderer that applies every update but the final flush's last delta; the mapper's final
+  // STATUS shows it the loss, and it asks for what changed since its version.
+  Field replica;
+  std::vector<FieldUpdate> held;  // the final flush's deltas, one behind
+  bool done = false, asked = false;
+  int snapshots = 0;
+  std::string error;
+  const auto report = [&] {
+    Status s;
+    s.process = "renderer";
+    s.pid = 1;
+    s.state = ProcessState::kRunning;
+    s.values = {{"field_version", static_cast<double>(replica.version())},
+                {"waiting_for_snapshot", 0.0}};
+    bus.publish(channel::kStatus, s);
+  };
+  bus.subscribe<FieldUpdate>(channel::kField, [&](const FieldUpdate& u) {
+    snapshots += u.is_snapshot;
+    if (u.is_snapshot) return;
+    if (asked) {  // the catch-up
+      EXPECT_EQ(applyFieldUpdate(u, &replica, &error), ApplyResult::kApplied) << error;
+      report();
+      return;
+    }
+    if (!held.empty()) {
+      EXPECT_EQ(applyFieldUpdate(held.back(), &replica, &error), ApplyResult::kApplied) << error;
+    }
+    held.push_back(u);
+  });
+  bus.subscribe<Status>(channel::kStatus, [&](const Status& s) {
+    if (s.process != "mapper" || s.state != ProcessState::kDone || done) return;
+    done = true;
+    asked = true;
+    ASSERT_LT(replica.version(), node.mapper().field().version());
+    Control c;
+    c.command = ControlCommand::kSnapshot;
+    c.target = "mapper";
+    c.argument = catchUpArgument(replica.version());
+    bus.publish(channel::kControl, c);
+  });
+  for (int i = 0; i < 20; ++i) ASSERT_TRUE(node.spinOnce(5));
+  report();
+  bus.handle(0);
+  node.finish();
+  EXPECT_TRUE(asked);
+  EXPECT_EQ(snapshots, 0);
+  EXPECT_EQ(replica.version(), node.mapper().field().version());
+  EXPECT_TRUE(replica.sameContent(node.mapper().field()));
+}
+
 TEST(MapperNode, AddsNewKeyframesBeforeQueuedRefinementsOneRefinementPerStep) {
   const SyntheticScene scene = smallRoom(30);
   Bus bus("memq://", "QUEUETEST_", "test");
