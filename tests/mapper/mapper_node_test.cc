@@ -356,6 +356,17 @@ TEST(MapperNode, ResumesFromACheckpointAsksForKeyframesAndResyncsReplicas) {
   EXPECT_TRUE(replica.sameContent(second.mapper().field()));
 }
 
+// What a renderer's STATUS tells the mapper at the end of a run.
+void publishRendererStatus(Bus* bus, int64_t field_version, bool waiting_for_snapshot) {
+  Status s;
+  s.process = "renderer";
+  s.pid = 1;
+  s.state = ProcessState::kRunning;
+  s.values = {{"field_version", static_cast<double>(field_version)},
+              {"waiting_for_snapshot", waiting_for_snapshot ? 1.0 : 0.0}};
+  bus->publish(channel::kStatus, s);
+}
+
 TEST(MapperNode, AfterTheFinalFlushServesASnapshotToARendererThatLostTheLastUpdate) {
   const SyntheticScene scene = smallRoom(20);
   Bus bus("memq://", "SYNCTEST_", "test");
@@ -376,13 +387,7 @@ TEST(MapperNode, AfterTheFinalFlushServesASnapshotToARendererThatLostTheLastUpda
   int chunks_asked = 0, chunks_resent = 0, max_chunk_count = 0;
   std::set<int> seen;
   const auto report = [&] {
-    Status s;
-    s.process = "renderer";
-    s.pid = 1;
-    s.state = ProcessState::kRunning;
-    s.values = {{"field_version", static_cast<double>(replica.version())},
-                {"waiting_for_snapshot", replica.initialized() ? 0.0 : 1.0}};
-    bus.publish(channel::kStatus, s);
+    publishRendererStatus(&bus, replica.version(), !replica.initialized());
   };
   bus.subscribe<Status>(channel::kStatus, [&](const Status& s) {
     if (s.process != "mapper" || s.state != ProcessState::kDone || asked) return;
@@ -448,15 +453,7 @@ TEST(MapperNode, AfterTheFinalFlushServesACatchUpToARendererThatLostTheLastUpdat
   bool done = false, asked = false;
   int snapshots = 0;
   std::string error;
-  const auto report = [&] {
-    Status s;
-    s.process = "renderer";
-    s.pid = 1;
-    s.state = ProcessState::kRunning;
-    s.values = {{"field_version", static_cast<double>(replica.version())},
-                {"waiting_for_snapshot", 0.0}};
-    bus.publish(channel::kStatus, s);
-  };
+  const auto report = [&] { publishRendererStatus(&bus, replica.version(), false); };
   bus.subscribe<FieldUpdate>(channel::kField, [&](const FieldUpdate& u) {
     snapshots += u.is_snapshot;
     if (u.is_snapshot) return;

@@ -130,14 +130,22 @@ TEST(FieldReplica, GapInTheMiddleAppliesTheBlocksAndAsksForASnapshot) {
   EXPECT_TRUE(replica.field().sameContent(mapper->field()));
 }
 
-TEST(FieldReplica, LostUpdateIsRepairedByACatchUp) {
+std::unique_ptr<Mapper> untrainedDemoMapper() {
   DemoFieldOptions options;
   options.train_steps = 0;
-  auto mapper = makeDemoMapper(options);
+  return makeDemoMapper(options);
+}
+
+void recordRequests(FieldReplica* replica, std::vector<FieldReplica::SnapshotAsk>* requests) {
+  replica->setSnapshotRequest(
+      [requests](const FieldReplica::SnapshotAsk& ask) { requests->push_back(ask); });
+}
+
+TEST(FieldReplica, LostUpdateIsRepairedByACatchUp) {
+  auto mapper = untrainedDemoMapper();
   FieldReplica replica;
   std::vector<FieldReplica::SnapshotAsk> requests;
-  replica.setSnapshotRequest(
-      [&](const FieldReplica::SnapshotAsk& ask) { requests.push_back(ask); });
+  recordRequests(&replica, &requests);
   std::string error;
   const FieldUpdate u1 = mapper->makeUpdate(0);
   mapper->train(2);
@@ -164,13 +172,10 @@ TEST(FieldReplica, LostUpdateIsRepairedByACatchUp) {
 }
 
 TEST(FieldReplica, ChunkedSnapshotWithLostChunksAndAStalledRequest) {
-  DemoFieldOptions options;
-  options.train_steps = 0;
-  auto mapper = makeDemoMapper(options);
+  auto mapper = untrainedDemoMapper();
   FieldReplica replica;
   std::vector<FieldReplica::SnapshotAsk> requests;
-  replica.setSnapshotRequest(
-      [&](const FieldReplica::SnapshotAsk& ask) { requests.push_back(ask); });
+  recordRequests(&replica, &requests);
   std::string error;
   mapper->train(2);
   const FieldUpdate u1 = mapper->makeUpdate(0);
