@@ -6,7 +6,9 @@
 /// A replica at version r applies an update (base b, version v) when b <= r < v: every block
 /// that changed in (b, v] is in it, every other block is as it was at b. A snapshot carries
 /// every block and replaces the replica. Applying a mapper's updates in version order, then
-/// one made after its last change, reproduces its field bitwise.
+/// one made after its last change, reproduces its field bitwise. A replica that lost updates
+/// after version e, where it was last exact, is exact again with a catch-up: an update based
+/// at e (makeFieldCatchUp), or a snapshot when more changed since than a message holds.
 ///
 /// Snapshots travel in chunks (SnapshotSender), so that no message outgrows what the bus
 /// delivers: each chunk carries the current values of its blocks. A replica assembles the
@@ -109,9 +111,10 @@ class SnapshotAssembler {
   int64_t snapshotId() const { return snapshot_id_; }
   /// The chunk indices of the snapshot in progress that have not arrived, ascending.
   std::vector<int> missing() const;
+  /// Drops the snapshot in progress.
+  void reset();
 
  private:
-  void reset();
   Field field_;
   int64_t snapshot_id_ = -1;  // -1: none in progress
   std::vector<bool> received_;

@@ -56,7 +56,8 @@ ApplyResult FieldReplica::apply(const FieldUpdate& update, std::string* error) {
       // lost ones) leaves it exact.
       if (update.is_snapshot || (exact_version_ >= 0 && update.base_version <= exact_version_)) {
         exact_version_ = update.version;
-        if (!assembler_.inProgress()) waiting_snapshot_ = false;
+        waiting_snapshot_ = false;
+        assembler_.reset();  // a snapshot on its way is not needed any more
       }
       break;
     case ApplyResult::kGap:
@@ -123,7 +124,7 @@ void FieldReplica::retryStalledSnapshot(double now_s, double stall_s) {
   now_s_ = now_s;
   if (!waiting_snapshot_ || now_s - last_progress_s_ <= stall_s) return;
   const std::string reason =
-      "no snapshot chunk within " + std::to_string(static_cast<int>(stall_s)) + " s";
+      "nothing came within " + std::to_string(static_cast<int>(stall_s)) + " s of asking";
   if (assembler_.inProgress()) {
     requestChunks(assembler_.missing(), reason);
   } else {
