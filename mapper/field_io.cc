@@ -7,7 +7,6 @@
 #include <memory>
 #include <sstream>
 #include <stdexcept>
-#include <tuple>
 
 #include <zstd.h>
 
@@ -139,14 +138,13 @@ FieldUpdate makeFieldSnapshot(Field* field) {
 
 FieldUpdate makeFieldCatchUp(Field* field, int64_t since_version, int max_blocks) {
   checkHost();
-  int changed = 0, newest_level = -1, newest_block = -1;
-  int64_t newest = -1;
+  int changed = 0;
+  std::pair<int, int> any{-1, -1}, changed_one{-1, -1};  // (level, block)
   for (int l = 0; l < field->numLevels(); ++l) {
     for (int b = 0; b < field->numBlocks(l); ++b) {
-      const int64_t v = field->blockVersion(l, b);
-      if (v <= since_version) continue;
-      ++changed;
-      if (v > newest) std::tie(newest, newest_level, newest_block) = std::tuple(v, l, b);
+      if (any.first < 0) any = {l, b};
+      if (field->blockVersion(l, b) <= since_version) continue;
+      if (changed++ == 0) changed_one = {l, b};
     }
   }
   if (changed > max_blocks) {
@@ -155,10 +153,8 @@ FieldUpdate makeFieldCatchUp(Field* field, int64_t since_version, int max_blocks
     return u;
   }
   // A new version even when nothing is pending: the replica may be at the current one.
-  for (int l = 0; newest_level < 0 && l < field->numLevels(); ++l) {
-    if (field->numBlocks(l) > 0) std::tie(newest_level, newest_block) = std::pair(l, 0);
-  }
-  if (newest_level >= 0) field->markChanged(newest_level, newest_block);
+  const std::pair<int, int> mark = changed > 0 ? changed_one : any;
+  if (mark.first >= 0) field->markChanged(mark.first, mark.second);
   return makeFieldUpdate(field, since_version, max_blocks);
 }
 

@@ -57,7 +57,7 @@ ApplyResult FieldReplica::apply(const FieldUpdate& update, std::string* error) {
       if (update.is_snapshot || (exact_version_ >= 0 && update.base_version <= exact_version_)) {
         exact_version_ = update.version;
         waiting_snapshot_ = false;
-        assembler_.reset();  // a snapshot on its way is not needed any more
+        if (assembler_.inProgress()) assembler_.reset();  // that snapshot is not needed now
       }
       break;
     case ApplyResult::kGap:

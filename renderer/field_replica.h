@@ -52,16 +52,16 @@ class FieldReplica {
   /// applied all the same (GapPolicy::kApply, so a live view stays live) and a catch-up since
   /// the version where it was last exact is asked for (once until it or a snapshot arrives),
   /// which makes the replica exact again. A snapshot chunk past chunks that did not come asks
-  /// for those again at once. Returns the result; *error says
-  /// what was wrong on kGap and kInvalid.
+  /// for those again at once. Returns the result; *error says what was wrong on kGap and
+  /// kInvalid.
   ApplyResult apply(const FieldUpdate& update, std::string* error = nullptr);
 
   const Field& field() const { return field_; }
   int64_t version() const { return field_.initialized() ? field_.version() : version_empty_; }
   bool waitingForSnapshot() const { return waiting_snapshot_; }
-  /// Asks again for what a snapshot asked for more than stall_s ago (s) lacks when it made no
-  /// progress since (a lost request or lost chunks): its missing chunks, or a whole snapshot
-  /// when none is in progress. now_s: any monotonic clock, s.
+  /// Asks again when a repair asked for more than stall_s ago (s) made no progress since (a
+  /// lost request or lost chunks): the missing chunks of the snapshot in progress, else the
+  /// catch-up (or snapshot) again. now_s: any monotonic clock, s.
   void retryStalledSnapshot(double now_s, double stall_s);
   /// An update known to exist that never arrived (the mapper's STATUS reports a newer version
   /// than the last update received: the last update of a run leaves no later one to show the
