@@ -46,6 +46,7 @@ const char* kUsage = R"(usage: radslam-bench-dynamic [options]
   --fps F            frame rate of the rendered sequences, Hz (default: the scene's, 30 for rooms
                      and 10 for streets)
   --modes LIST       with --pipeline: tracker modes to run (default rgbd,stereo)
+  --baseline M       with --pipeline: stereo baseline of the rendered rig, m (default 0.1)
   --segmentation-only  with --pipeline: only the run with masks withheld (its ATE and IoU)
   --mask-dir DIR     with --pipeline: write each frame's true and segmented moving masks there
                      (DIR/<scene>-<mode>-<frame>.png: true in red, segmented in green,
@@ -383,13 +384,14 @@ struct PipelineRow {
 };
 
 int runPipeline(const std::vector<std::string>& scenes, int frames, int width, double fps,
-                uint64_t first_seed, int seeds, const std::vector<std::string>& modes,
-                bool segmentation_only, const std::string& mask_dir, const TrackerParams& base) {
+                double baseline_m, uint64_t first_seed, int seeds,
+                const std::vector<std::string>& modes, bool segmentation_only,
+                const std::string& mask_dir, const TrackerParams& base) {
   std::printf(
       "whole tracker, %d frames %dx%d with sensor noise (colour sigma 2, depth 0.0015 z^2), "
-      "noise seeds %llu..%llu; camera ATE (SE3, m);\nobject motion error per frame (mean t m / r "
-      "deg) of the tracker's objects, class joints vs all joints free\n",
-      frames, width, width * 3 / 4, static_cast<unsigned long long>(first_seed),
+      "stereo baseline %.2f m, noise seeds %llu..%llu; camera ATE (SE3, m);\nobject motion error "
+      "per frame (mean t m / r deg) of the tracker's objects, class joints vs all joints free\n",
+      frames, width, width * 3 / 4, baseline_m, static_cast<unsigned long long>(first_seed),
       static_cast<unsigned long long>(first_seed + seeds - 1));
   std::printf(
       "%-6s %3s %-6s | %5s %5s | %8s %8s %8s %9s %6s | %8s %7s | %8s %7s | %5s %5s | %8s %5s "
@@ -408,6 +410,7 @@ int runPipeline(const std::vector<std::string>& scenes, int frames, int width, d
       config.image_noise_sigma = 2.0;
       config.depth_noise_rel = 0.0015;
       config.fps = fps;
+      config.baseline_m = baseline_m;
       config.seed = first_seed + k;
       const PipelineScene s = makePipelineScene(config);
       scene_fps = s.moving.fps();
@@ -509,6 +512,7 @@ int run(int argc, char** argv) {
   const int frames = cli.getInt("frames", pipeline ? 150 : 60);
   const int width = cli.getInt("width", pipeline ? 640 : 320);
   const double fps = cli.getDouble("fps", 0);
+  const double baseline_m = cli.getDouble("baseline", SyntheticConfig().baseline_m);
   const std::vector<std::string> modes = split(cli.get("modes", "rgbd,stereo"));
   const bool segmentation_only = cli.getBool("segmentation-only", false);
   const std::string mask_dir = cli.get("mask-dir", "");
@@ -537,8 +541,8 @@ int run(int argc, char** argv) {
     std::stringstream items(set);
     for (std::string item; std::getline(items, item, ',');)
       if (!item.empty()) overrides.push_back(item);
-    return runPipeline(scenes, frames, width, fps, seed, seeds, modes, segmentation_only, mask_dir,
-                       loadTrackerParams("", overrides));
+    return runPipeline(scenes, frames, width, fps, baseline_m, seed, seeds, modes,
+                       segmentation_only, mask_dir, loadTrackerParams("", overrides));
   }
   std::printf(
       "object motion error per frame, mean over frame pairs: translation m, rotation deg\n");

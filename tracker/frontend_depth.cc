@@ -5,6 +5,8 @@
 #include <limits>
 #include <vector>
 
+#include <opencv2/calib3d.hpp>
+
 namespace radslam {
 namespace {
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
@@ -56,6 +58,36 @@ void depthPrior(const cv::Mat& grid_depth, double a, double b, double z0, cv::Ma
       var[u] = static_cast<float>(sigma_z * sigma_z / std::pow(static_cast<double>(z[u]), 4));
     }
   }
+}
+
+cv::Mat semiGlobalStereoDepth(const cv::Mat& left, const cv::Mat& right, double fx,
+                              double baseline_m, double min_depth_m) {
+  CV_Assert(left.type() == CV_8UC1 && right.type() == CV_8UC1 && left.size() == right.size());
+  CV_Assert(fx > 0 && baseline_m > 0 && min_depth_m > 0);
+  // SGBM searches a multiple of 16 disparities.
+  const double max_disparity = fx * baseline_m / min_depth_m;
+  const int range = std::clamp(16 * static_cast<int>(std::ceil(max_disparity / 16)), 16,
+                               std::max(16, 16 * (left.cols / 32)));
+  const int block = 5;
+  const cv::Ptr<cv::StereoSGBM> sgbm = cv::StereoSGBM::create(
+      0, range, block, 8 * block * block, 32 * block * block,
+      /*disp12MaxDiff=*/1, /*preFilterCap=*/31, /*uniquenessRatio=*/10,
+      /*speckleWindowSize=*/100, /*speckleRange=*/2, cv::StereoSGBM::MODE_SGBM_3WAY);
+  cv::Mat left_padded, right_padded, disparity16;
+  cv::copyMakeBorder(left, left_padded, 0, 0, range, 0, cv::BORDER_REPLICATE);
+  cv::copyMakeBorder(right, right_padded, 0, 0, range, 0, cv::BORDER_REPLICATE);
+  sgbm->compute(left_padded, right_padded, disparity16);
+  cv::Mat depth(left.size(), CV_32FC1, cv::Scalar(0));
+  const double fb16 = 16 * fx * baseline_m;  // disparities come in 1/16 px
+  for (int y = 0; y < depth.rows; ++y) {
+    const int16_t* d = disparity16.ptr<int16_t>(y) + range;
+    float* z = depth.ptr<float>(y);
+    // At least half a pixel, and not matched into the replicated padding.
+    for (int x = 0; x < depth.cols; ++x) {
+      if (d[x] >= 8 && d[x] <= 16 * x) z[x] = static_cast<float>(fb16 / d[x]);
+    }
+  }
+  return depth;
 }
 
 cv::Mat stereoInverseDepth(const cv::Mat& target, const cv::Mat& weight, double fx_grid,

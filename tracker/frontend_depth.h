@@ -21,6 +21,14 @@ cv::Mat sensorDepthToGrid(const cv::Mat& depth, int cell, double min_fraction, d
 void depthPrior(const cv::Mat& grid_depth, double a, double b, double z0, cv::Mat* inv_depth,
                 cv::Mat* inv_depth_var);
 
+/// Per-pixel metric depth (CV_32FC1 m, 0 = unknown) of a rectified grey pair (CV_8UC1, same
+/// size) by OpenCV's semi-global matching: 5 px blocks, 3-way, sub-pixel, left-right checked,
+/// speckles removed. The disparity search reaches depths down to min_depth_m (at most half the
+/// width). Both images are padded on the left by the search range, so that the left border,
+/// whose search would leave the right image, keeps the matches that stay inside it.
+cv::Mat semiGlobalStereoDepth(const cv::Mat& left, const cv::Mat& right, double fx,
+                              double baseline_m, double min_depth_m);
+
 /// Inverse depth from a rectified stereo edge (grid targets in the right image, weights):
 /// d = (u - u_right) / (fx * baseline) (1/m) where the weight is positive and the disparity
 /// is at least min_disparity_px grid px; NaN elsewhere.

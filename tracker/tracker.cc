@@ -680,8 +680,11 @@ const cv::Mat& Tracker::Impl::frameDepth(const PreparedImage& image) {
   if (mode == TrackerMode::kRgbd) return image.depth;
   if (mode == TrackerMode::kStereo && frame_depth.empty()) {
     const auto t_flow = Clock::now();
-    frame_depth = stereoDepth(flow.compute(image.grey, image.right_grey),
-                              preparer->geometry().working.fx, baseline_m);
+    const double fx = preparer->geometry().working.fx;
+    frame_depth = p.stereo_matcher == "sgbm"
+                      ? semiGlobalStereoDepth(image.grey, image.right_grey, fx, baseline_m,
+                                              p.stereo_min_depth_m)
+                      : stereoDepth(flow.compute(image.grey, image.right_grey), fx, baseline_m);
     stats.flow_ms += msSince(t_flow);
   }
   return frame_depth;

@@ -210,7 +210,12 @@ struct TrackerParams {
   int motion_class_id = 250;
   int motion_rounds = 2;                   // segment, re-align without the objects, segment again
   double stereo_disparity_sigma_px = 0.5;  // working px: stereo depth noise for segmentation
-  double motion_max_fraction = 0.5;        // of the image: more moving means the pose is wrong
+  // Stereo: the per-frame depth of segmentation and objects, from "flow" (the left -> right
+  // dense flow) or "sgbm" (semi-global matching, down to stereo_min_depth_m): better with a
+  // wide rig, slower (docs/tracker.md, Moving objects).
+  std::string stereo_matcher = "flow";
+  double stereo_min_depth_m = 0.5;
+  double motion_max_fraction = 0.5;  // of the image: more moving means the pose is wrong
   // More than this fraction of the ground plane (tracker/motion_segmentation.h groundPixels)
   // moving means the pose followed an object (a truck alongside driving with the camera): the
   // frame is aligned on the ground alone and judged again; 1 = never.

@@ -132,6 +132,9 @@ void validateTrackerParams(const TrackerParams& p) {
   check(p.motion_rounds >= 1 && p.motion_max_fraction > 0 && p.motion_max_fraction <= 1,
         "motion_rounds >= 1, motion_max_fraction in (0, 1]");
   check(p.stereo_disparity_sigma_px > 0, "stereo_disparity_sigma_px > 0");
+  check(p.stereo_matcher == "flow" || p.stereo_matcher == "sgbm",
+        "stereo_matcher must be flow or sgbm, not '" + p.stereo_matcher + "'");
+  check(p.stereo_min_depth_m > 0, "stereo_min_depth_m must be > 0");
   check(p.motion_photometric_margin >= 0, "motion_photometric_margin must be >= 0");
   check(p.motion_weak_fraction > 0 && p.motion_weak_fraction <= 1,
         "motion_weak_fraction in (0, 1]");
@@ -237,6 +240,8 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("motion_class_id", &p.motion_class_id);
   r.get("motion_rounds", &p.motion_rounds);
   r.get("stereo_disparity_sigma_px", &p.stereo_disparity_sigma_px);
+  r.get("stereo_matcher", &p.stereo_matcher);
+  r.get("stereo_min_depth_m", &p.stereo_min_depth_m);
   r.get("motion_max_fraction", &p.motion_max_fraction);
   r.get("motion_ground_max_moving", &p.motion_ground_max_moving);
   r.get("object_flow_smoothing_px", &p.object_flow_smoothing_px);

@@ -10,6 +10,7 @@
 
 #include "common/camera.h"
 #include "common/synthetic.h"
+#include "tracker/frontend_depth.h"
 #include "tracker/frontend_flow.h"
 #include "tracker/frontend_refine.h"
 
@@ -552,6 +553,52 @@ TEST(MovingMasks, KeepMovingPixelsOutOfTheCorrespondences) {
   const Correspondences unmasked = flowToCorrespondences(
       a, b, flow, cv::Mat(), cellStructureTensor(imageGradients(a), 8), g, options);
   EXPECT_NEAR(unmasked.target.at<cv::Vec2f>(1, 3)[0], 3 + (0.75 * 8 - 0.25 * 5) / 8, 1e-4);
+}
+
+TEST(SemiGlobalStereoDepth, MatchesTheTrueDepthUpToTheLeftBorder) {
+  // The door scene at frame 20 has the door near the left border, where a disparity search
+  // without padding finds nothing.
+  SyntheticConfig config;
+  config.scene = "door";
+  config.width = 384;
+  config.height = 288;
+  config.frames = 30;
+  config.image_noise_sigma = 2;
+  const SyntheticScene scene = SyntheticScene::make(config);
+  const Frame frame = scene.frame(20);
+  const double fx = scene.camera().fx;
+  const cv::Mat depth =
+      semiGlobalStereoDepth(toGrey(frame.color), toGrey(frame.right), fx, config.baseline_m, 0.5);
+  ASSERT_EQ(depth.type(), CV_32FC1);
+  ASSERT_EQ(depth.size(), frame.color.size());
+  const RenderedView truth = scene.render(scene.cameraPose(20), scene.camera(), 20);
+  // Disparity errors (px) over the whole image and over columns 16-63 (the left border).
+  std::vector<double> errors, border_errors;
+  int measured = 0, border_measured = 0, total = 0, border_total = 0;
+  for (int y = 0; y < depth.rows; ++y) {
+    for (int x = 0; x < depth.cols; ++x) {
+      const float z_true = truth.depth.at<float>(y, x), z = depth.at<float>(y, x);
+      if (!(z_true > 0)) continue;
+      const bool border = x >= 16 && x < 64;
+      ++total;
+      border_total += border;
+      if (!(z > 0)) continue;
+      ++measured;
+      border_measured += border;
+      const double error = std::abs(fx * config.baseline_m * (1 / z - 1 / z_true));
+      errors.push_back(error);
+      if (border) border_errors.push_back(error);
+    }
+  }
+  EXPECT_GT(measured, 0.9 * total);
+  EXPECT_GT(border_measured, 0.8 * border_total);
+  const auto quantile = [](std::vector<double> v, double q) {
+    std::sort(v.begin(), v.end());
+    return v[static_cast<size_t>(q * (v.size() - 1))];
+  };
+  EXPECT_LT(quantile(errors, 0.5), 0.25);
+  EXPECT_LT(quantile(errors, 0.95), 1.0);
+  EXPECT_LT(quantile(border_errors, 0.5), 0.25);
 }
 
 }  // namespace
