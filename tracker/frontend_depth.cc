@@ -60,6 +60,21 @@ void depthPrior(const cv::Mat& grid_depth, double a, double b, double z0, cv::Ma
   }
 }
 
+cv::Mat flowStereoDepth(const cv::Mat& flow_lr, double fx, double baseline_m) {
+  cv::Mat depth(flow_lr.size(), CV_32FC1, cv::Scalar(0));
+  for (int y = 0; y < flow_lr.rows; ++y) {
+    const cv::Vec2f* f = flow_lr.ptr<cv::Vec2f>(y);
+    float* z = depth.ptr<float>(y);
+    for (int x = 0; x < flow_lr.cols; ++x) {
+      const float disparity = -f[x][0];
+      if (disparity > 0.5f && std::abs(f[x][1]) < 1.f) {
+        z[x] = static_cast<float>(fx * baseline_m / disparity);
+      }
+    }
+  }
+  return depth;
+}
+
 cv::Mat semiGlobalStereoDepth(const cv::Mat& left, const cv::Mat& right, double fx,
                               double baseline_m, double min_depth_m) {
   CV_Assert(left.type() == CV_8UC1 && right.type() == CV_8UC1 && left.size() == right.size());

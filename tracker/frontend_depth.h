@@ -21,6 +21,11 @@ cv::Mat sensorDepthToGrid(const cv::Mat& depth, int cell, double min_fraction, d
 void depthPrior(const cv::Mat& grid_depth, double a, double b, double z0, cv::Mat* inv_depth,
                 cv::Mat* inv_depth_var);
 
+/// Per-pixel metric depth (CV_32FC1 m, 0 = unknown) from a rectified left -> right flow: the
+/// disparity is -flow.x; rows off by more than a pixel or disparities under half a pixel are
+/// not trusted.
+cv::Mat flowStereoDepth(const cv::Mat& flow_lr, double fx, double baseline_m);
+
 /// Per-pixel metric depth (CV_32FC1 m, 0 = unknown) of a rectified grey pair (CV_8UC1, same
 /// size) by OpenCV's semi-global matching: 5 px blocks, 3-way, sub-pixel, left-right checked,
 /// speckles removed. The disparity search reaches depths down to min_depth_m (at most half the

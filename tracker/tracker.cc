@@ -20,24 +20,6 @@ double msSince(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
 }
 
-/// Per-pixel metric depth (CV_32FC1 m, 0 = unknown) from a rectified left -> right flow: the
-/// disparity is -flow.x; rows off by more than a pixel or disparities under half a pixel are
-/// not trusted.
-cv::Mat stereoDepth(const cv::Mat& flow_lr, double fx, double baseline_m) {
-  cv::Mat depth(flow_lr.size(), CV_32FC1, cv::Scalar(0));
-  for (int y = 0; y < flow_lr.rows; ++y) {
-    const cv::Vec2f* f = flow_lr.ptr<cv::Vec2f>(y);
-    float* z = depth.ptr<float>(y);
-    for (int x = 0; x < flow_lr.cols; ++x) {
-      const float disparity = -f[x][0];
-      if (disparity > 0.5f && std::abs(f[x][1]) < 1.f) {
-        z[x] = static_cast<float>(fx * baseline_m / disparity);
-      }
-    }
-  }
-  return depth;
-}
-
 }  // namespace
 
 Tracker::Impl::Impl(const TrackerParams& params, TrackerMode m)
@@ -684,7 +666,7 @@ const cv::Mat& Tracker::Impl::frameDepth(const PreparedImage& image) {
     frame_depth = p.stereo_matcher == "sgbm"
                       ? semiGlobalStereoDepth(image.grey, image.right_grey, fx, baseline_m,
                                               p.stereo_min_depth_m)
-                      : stereoDepth(flow.compute(image.grey, image.right_grey), fx, baseline_m);
+                      : flowStereoDepth(flow.compute(image.grey, image.right_grey), fx, baseline_m);
     stats.flow_ms += msSince(t_flow);
   }
   return frame_depth;
