@@ -43,6 +43,13 @@ struct MotionSegmentationParams {
   /// Weak evidence (every threshold above times this) makes a pixel move only where it connects
   /// to strong evidence; 1 = only the flow test of pixels the static scene carries out of view.
   double weak_fraction = 0.7;
+  /// With carry errors (landingGreyError): a flow lands off its pixel when it lands more than
+  /// carry_grey_error grey levels from it. Where more than carry_max_failed_fraction of a
+  /// connected region's moving pixels do (those moving by their flow alone), its flow failed
+  /// (a pole passing close), and carried it would scatter the pixels over the background,
+  /// which closing fills into a blob several times the pole's size: they are not carried.
+  double carry_grey_error = 8.0;
+  double carry_max_failed_fraction = 0.25;
 };
 
 class MotionSegmenter {
@@ -59,8 +66,11 @@ class MotionSegmenter {
   /// not judged): photometricPreference below; a pixel whose flow disagrees moves only when
   /// the static prediction is photometrically worse by photometric_margin (a flow that failed,
   /// at occlusions, thin structures or long flows on the ground, matches b no better).
+  /// carry_error (CV_32FC1, a's size, optional, NaN: not judged): landingGreyError below of the
+  /// measured flow (see carry_grey_error).
   cv::Mat segment(const cv::Mat& measured, const cv::Mat& predicted, const cv::Mat& depth_flow = {},
-                  const cv::Mat& depth_test = {}, const cv::Mat& photo_test = {});
+                  const cv::Mat& depth_test = {}, const cv::Mat& photo_test = {},
+                  const cv::Mat& carry_error = {});
 
   /// Forgets the previous frame's components (ids are not reused).
   void reset() { previous_.release(); }
@@ -75,6 +85,11 @@ class MotionSegmenter {
   cv::Mat previous_;  // last instance mask
   int next_id_;
 };
+
+/// How well the flow a -> b (CV_32FC2 working px, a's size) carries each pixel of a: the grey
+/// difference |b - a(x)| closest to zero within 1 px of its landing x + flow (grey levels).
+/// CV_32FC1, a's size; NaN where that 3 x 3 neighbourhood is not inside b or the flow is unknown.
+cv::Mat landingGreyError(const cv::Mat& grey_a, const cv::Mat& grey_b, const cv::Mat& flow);
 
 /// Depth evidence (RGB-D sensor or stereo) of motion along the viewing ray, which flow misses: an
 /// object ahead that drives with the camera stays put in the image while the static scene would

@@ -125,6 +125,7 @@ void Tracker::Impl::setUpCamera(std::unique_ptr<ImagePreparer> first_preparer) {
     segmentation.photometric_margin = p.motion_photometric_margin;
     segmentation.min_object_pixels = p.motion_min_pixels;
     segmentation.weak_fraction = p.motion_weak_fraction;
+    segmentation.carry_grey_error = p.motion_carry_grey_error;
     segmenter = std::make_unique<MotionSegmenter>(segmentation);
   }
   objects =
@@ -569,13 +570,15 @@ void Tracker::Impl::segmentMotion(const KeyframeData& ref, int64_t frame_index,
     const cv::Mat photo_test = p.motion_photometric_margin > 0
                                    ? photometricPreference(a.grey, image.grey, forward, predicted)
                                    : cv::Mat();
+    const cv::Mat carry_error = landingGreyError(a.grey, image.grey, forward);
     const MotionSegmenter before = *segmenter;
-    cv::Mat instance = segmenter->segment(forward, predicted, depth_flow, depth_test, photo_test);
+    cv::Mat instance =
+        segmenter->segment(forward, predicted, depth_flow, depth_test, photo_test, carry_error);
     if (!depth_test.empty() && too_much(instance)) {
       // A pose that followed a large object makes the static scene disagree in depth nearly
       // everywhere (synthetic truck: 14.6 m ATE); then flow alone judges this round.
       *segmenter = before;
-      instance = segmenter->segment(forward, predicted, depth_flow, {}, photo_test);
+      instance = segmenter->segment(forward, predicted, depth_flow, {}, photo_test, carry_error);
     }
     if (ground_moves(instance)) {
       *segmenter = before;

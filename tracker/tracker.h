@@ -200,6 +200,11 @@ struct TrackerParams {
   // Evidence above this fraction of the thresholds moves a pixel where it connects to evidence
   // above them (tracker/motion_segmentation.h): the slow side of a door near its hinge.
   double motion_weak_fraction = 0.7;
+  // A flow lands off its pixel more than this many grey levels from it (tracker/
+  // motion_segmentation.h landingGreyError). A moving region where a quarter of the pixels
+  // moving by their flow alone do is not carried into the frame (255 = always carried): the
+  // failed flow of a pole passing close scatters it into a blob.
+  double motion_carry_grey_error = 8.0;
   // Motion is judged against the newest window keyframe at least this many frames old (the
   // last keyframe when none is; 0 = always the last): one made a frame ago has seen little of
   // the motion (the car was missed on every frame after a new keyframe). Older ones make longer

@@ -138,6 +138,7 @@ void validateTrackerParams(const TrackerParams& p) {
   check(p.motion_photometric_margin >= 0, "motion_photometric_margin must be >= 0");
   check(p.motion_weak_fraction > 0 && p.motion_weak_fraction <= 1,
         "motion_weak_fraction in (0, 1]");
+  check(p.motion_carry_grey_error >= 0, "motion_carry_grey_error must be >= 0");
   check(p.motion_min_keyframe_age >= 0, "motion_min_keyframe_age must be >= 0");
   check(p.motion_ground_max_moving > 0 && p.motion_ground_max_moving <= 1,
         "motion_ground_max_moving must be in (0, 1]");
@@ -235,6 +236,7 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("motion_residual_px", &p.motion_residual_px);
   r.get("motion_photometric_margin", &p.motion_photometric_margin);
   r.get("motion_weak_fraction", &p.motion_weak_fraction);
+  r.get("motion_carry_grey_error", &p.motion_carry_grey_error);
   r.get("motion_min_keyframe_age", &p.motion_min_keyframe_age);
   r.get("motion_min_pixels", &p.motion_min_pixels);
   r.get("motion_class_id", &p.motion_class_id);

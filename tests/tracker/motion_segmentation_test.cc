@@ -29,11 +29,23 @@ Flows makeFlows(int object_x) {
   return f;
 }
 
-TEST(MotionSegmenter, FindsTheObjectAndKeepsItsId) {
+// A smooth texture: a pose error of a pixel changes it by less than the grey check's 12 levels.
+uint8_t smoothGrey(double x, double y) {
+  return cv::saturate_cast<uint8_t>(128 + 60 * std::sin(0.3 * x) * std::cos(0.25 * y));
+}
+
+// Thresholds for makeFlows' scene: a 3 px residual is strong evidence, the 40 x 40 object large
+// enough.
+MotionSegmentationParams squareParams() {
   MotionSegmentationParams params;
   params.min_residual_px = 1.0;
   params.relative_residual = 0.1;
   params.min_object_pixels = 400;
+  return params;
+}
+
+TEST(MotionSegmenter, FindsTheObjectAndKeepsItsId) {
+  const MotionSegmentationParams params = squareParams();
   MotionSegmenter segmenter(params);
   Flows f = makeFlows(40);
   const cv::Mat first = segmenter.segment(f.measured, f.predicted, f.depth_flow);
@@ -89,10 +101,7 @@ TEST(MotionSegmenter, PhotometricTestKeepsObjectsAndDropsFailedFlow) {
   EXPECT_NEAR(cv::mean(preference(cv::Rect(10, 95, 30, 20)))[0], 0, 0.5);  // static, right flow
   EXPECT_TRUE(std::isnan(preference.at<float>(60, 159)));                  // both ends outside b
 
-  MotionSegmentationParams params;
-  params.min_residual_px = 1.0;
-  params.relative_residual = 0.1;
-  params.min_object_pixels = 400;
+  const MotionSegmentationParams params = squareParams();
   MotionSegmenter flow_only(params), with_photo(params);
   const cv::Mat two = flow_only.segment(f.measured, f.predicted, f.depth_flow);
   EXPECT_GT(cv::countNonZero(two(failed)), 400) << "the failed flow looks like an object";
@@ -101,9 +110,57 @@ TEST(MotionSegmenter, PhotometricTestKeepsObjectsAndDropsFailedFlow) {
   EXPECT_NEAR(cv::countNonZero(one), object.area(), 0.1 * object.area());
 }
 
-// A smooth texture: a pose error of a pixel changes it by less than the grey check's 12 levels.
-uint8_t smoothGrey(double x, double y) {
-  return cv::saturate_cast<uint8_t>(128 + 60 * std::sin(0.3 * x) * std::cos(0.25 * y));
+// The same scene on a smooth bright background, with a dark static pole whose flow failed
+// (random within 12 px, as for a pole passing close to the camera): judged moving, its pixels
+// are carried along that flow over the background, and closing fills the scatter into a blob
+// several times the pole's size. The carry test leaves out regions where too many flows land off
+// their pixel's grey value: the pole, not the object.
+TEST(MotionSegmenter, CarryTestDropsPixelsAFailedFlowScatters) {
+  const cv::Size size(160, 120);
+  cv::Mat a(size, CV_8UC1), b(size, CV_8UC1);
+  for (int y = 0; y < size.height; ++y)
+    for (int x = 0; x < size.width; ++x) {
+      a.at<uint8_t>(y, x) = static_cast<uint8_t>(smoothGrey(x, y) / 4 + 150);
+      b.at<uint8_t>(y, x) = static_cast<uint8_t>(smoothGrey(x - 3, y) / 4 + 150);
+    }
+  const cv::Rect object(40, 50, 40, 40), pole(120, 25, 6, 70);
+  a(object).copyTo(b(object));
+  a(pole).setTo(20);
+  b(pole + cv::Point(3, 0)).setTo(20);
+  Flows f = makeFlows(object.x);
+  cv::Mat scatter(pole.size(), CV_32FC2);
+  cv::randu(scatter, -12, 12);
+  f.measured(pole) += scatter;
+
+  const cv::Mat error = landingGreyError(a, b, f.measured);
+  ASSERT_EQ(error.type(), CV_32FC1);
+  EXPECT_EQ(cv::countNonZero(error(object) != 0), 0);                    // carried onto itself
+  EXPECT_EQ(cv::countNonZero(error(cv::Rect(10, 95, 30, 20)) != 0), 0);  // static, right flow
+  EXPECT_GT(cv::countNonZero(error(pole) > 50), pole.area() / 2);        // lands off the pole
+  EXPECT_TRUE(std::isnan(error.at<float>(60, 158)));                     // lands outside b
+
+  const MotionSegmentationParams params = squareParams();
+  MotionSegmenter without(params), with(params);
+  const cv::Mat blob = without.segment(f.measured, f.predicted, f.depth_flow);
+  const cv::Mat kept = with.segment(f.measured, f.predicted, f.depth_flow, {}, {}, error);
+  const cv::Rect right_half(100, 0, 60, 120);
+  EXPECT_GT(cv::countNonZero(blob(right_half)), 3 * pole.area()) << "the closed scatter";
+  EXPECT_LT(cv::countNonZero(kept(right_half)), 1.5 * pole.area());
+  EXPECT_EQ(cv::countNonZero(kept(object)), object.area());
+  EXPECT_EQ(cv::countNonZero(blob(object)), object.area());
+
+  // A tenth of the object's flows miss as well (a textureless truck side): the region is kept.
+  cv::Mat misses(object.size(), CV_8UC1);
+  cv::randu(misses, 0, 10);
+  cv::Mat object_scatter(object.size(), CV_32FC2);
+  cv::randu(object_scatter, -12, 12);
+  object_scatter.setTo(cv::Scalar(0, 0), misses > 0);
+  f.measured(object) += object_scatter;
+  const cv::Mat some_missed = landingGreyError(a, b, f.measured);
+  EXPECT_GT(cv::countNonZero(some_missed(object) > 8), 0);
+  MotionSegmenter again(params);
+  const cv::Mat whole = again.segment(f.measured, f.predicted, f.depth_flow, {}, {}, some_missed);
+  EXPECT_GT(cv::countNonZero(whole(object)), 0.95 * object.area());
 }
 
 // 160 x 120 px, 150 px focal length, principal point in the middle.
@@ -314,6 +371,9 @@ TEST(MotionSegmenter, RejectsBadParameters) {
   EXPECT_THROW(MotionSegmenter{params}, std::invalid_argument);
   params = MotionSegmentationParams();
   params.weak_fraction = 0;
+  EXPECT_THROW(MotionSegmenter{params}, std::invalid_argument);
+  params = MotionSegmentationParams();
+  params.carry_grey_error = -1;
   EXPECT_THROW(MotionSegmenter{params}, std::invalid_argument);
 }
 
