@@ -18,6 +18,17 @@ namespace radslam {
 
 namespace {
 
+// |b - grey| closest to zero over the 3 x 3 pixels of b around (xb, yb), which must be inside b:
+// a landing a pixel off still finds its own grey value.
+int greyErrorNear(uint8_t grey, const cv::Mat& grey_b, int xb, int yb) {
+  int best = 255;
+  for (int dy = -1; dy <= 1; ++dy) {
+    const uint8_t* b = grey_b.ptr<uint8_t>(yb + dy);
+    for (int dx = -1; dx <= 1; ++dx) best = std::min(best, std::abs(grey - b[xb + dx]));
+  }
+  return best;
+}
+
 // Carries pixels of a into b along their rays: p_b = z R r(x, y) + t. R r is linear in x along
 // a row, which saves unprojecting every pixel (staticFlowFromDepth on 640 x 480: 8.9 -> 1.7 ms).
 class RayTransfer {
@@ -153,13 +164,8 @@ cv::Mat landingGreyError(const cv::Mat& grey_a, const cv::Mat& grey_b, const cv:
     for (int x = 0; x < W; ++x) {
       const float xf = x + f[x][0], yf = y + f[x][1];
       if (!(xf >= 0.5f && yf >= 0.5f && xf < W - 1.5f && yf < H - 1.5f)) continue;  // or NaN
-      const int xb = static_cast<int>(std::lround(xf)), yb = static_cast<int>(std::lround(yf));
-      int best = 255;
-      for (int dy = -1; dy <= 1; ++dy) {
-        const uint8_t* b = grey_b.ptr<uint8_t>(yb + dy);
-        for (int dx = -1; dx <= 1; ++dx) best = std::min(best, std::abs(a[x] - b[xb + dx]));
-      }
-      e[x] = static_cast<float>(best);
+      e[x] = static_cast<float>(greyErrorNear(a[x], grey_b, static_cast<int>(std::lround(xf)),
+                                              static_cast<int>(std::lround(yf))));
     }
   }
   return out;
@@ -211,11 +217,7 @@ cv::Mat depthDisagreement(const cv::Mat& depth_a, const cv::Mat& depth_b, const 
       if (land[0] < 0 || (df && !std::isfinite(df[x]))) continue;
       const int xb = land[0], yb = land[1];
       // A prediction a pose error moved onto another surface (thin poles) compares other depths.
-      int grey_error = 255;
-      for (int dy = -1; dy <= 1; ++dy)
-        for (int dx = -1; dx <= 1; ++dx)
-          grey_error = std::min(grey_error, std::abs(grey_a.at<uint8_t>(y, x) -
-                                                     grey_b.at<uint8_t>(yb + dy, xb + dx)));
+      const int grey_error = greyErrorNear(grey_a.at<uint8_t>(y, x), grey_b, xb, yb);
       if (grey_error > max_grey_error) continue;
       float lo = INFINITY, hi = 0;
       for (int dy = -2; dy <= 2; ++dy)

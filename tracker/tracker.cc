@@ -570,7 +570,9 @@ void Tracker::Impl::segmentMotion(const KeyframeData& ref, int64_t frame_index,
     const cv::Mat photo_test = p.motion_photometric_margin > 0
                                    ? photometricPreference(a.grey, image.grey, forward, predicted)
                                    : cv::Mat();
-    const cv::Mat carry_error = landingGreyError(a.grey, image.grey, forward);
+    // No grey difference exceeds 255 levels: the test is off there.
+    const cv::Mat carry_error =
+        p.motion_carry_grey_error < 255 ? landingGreyError(a.grey, image.grey, forward) : cv::Mat();
     const MotionSegmenter before = *segmenter;
     cv::Mat instance =
         segmenter->segment(forward, predicted, depth_flow, depth_test, photo_test, carry_error);
