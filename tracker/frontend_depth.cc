@@ -30,9 +30,17 @@ cv::Mat sensorDepthToGrid(const cv::Mat& depth, int cell, double min_fraction, d
         }
       }
       if (values.empty() || values.size() < needed) continue;
+      // The median; for an even count the two middle values are averaged in inverse depth,
+      // which is linear across a plane, so a slanted surface's cell gets its centre's depth
+      // (either middle value alone lies half a pixel off it).
       const size_t mid = values.size() / 2;
       std::nth_element(values.begin(), values.begin() + mid, values.end());
-      out.at<float>(v, u) = values[mid];
+      float z = values[mid];
+      if (values.size() % 2 == 0) {
+        const float below = *std::max_element(values.begin(), values.begin() + mid);
+        z = 2.0f * below * z / (below + z);
+      }
+      out.at<float>(v, u) = z;
     }
   }
   return out;

@@ -12,7 +12,9 @@ namespace radslam {
 
 /// Sensor depth (CV_32FC1 working resolution, m, 0 = invalid) reduced to the grid: the median
 /// of the valid values (within [min_m, max_m]) of each cell x cell block, 0 where fewer than
-/// min_fraction of its pixels are valid. The median keeps one surface at depth edges.
+/// min_fraction of its pixels are valid. The median keeps one surface at depth edges; for an
+/// even count it is the mean of the two middle values in inverse depth, so that a slanted
+/// plane's cell gets the depth at the cell centre.
 cv::Mat sensorDepthToGrid(const cv::Mat& depth, int cell, double min_fraction, double min_m,
                           double max_m);
 

@@ -3,6 +3,7 @@
 #include <cmath>
 #include <vector>
 
+#include <Eigen/Cholesky>
 #include <Eigen/Core>
 #include <Eigen/LU>
 #include <opencv2/imgproc.hpp>
@@ -19,6 +20,74 @@ cv::Mat imageGradients(const cv::Mat& grey) {
   return out;
 }
 
+namespace {
+
+// Affine Lucas-Kanade on one cell from the translation (dx, dy) found: pixel x of a's window
+// (offset q from the window centre) is matched at x + d + G q in b, so d is the flow at the
+// centre itself, where BA puts it. Leaves (dx, dy) unchanged when the window leaves b or the
+// system is singular. descent: scratch of 7 x side^2.
+void refineAffine(const cv::Mat& grey_b, int side, int xa, int ya, const float* ia,
+                  const float* gxs, const float* gys, const float* used, bool offset,
+                  const RefineOptions& options, std::vector<float>* descent, float* dx, float* dy) {
+  using Mat7 = Eigen::Matrix<double, 7, 7>;
+  using Vec7 = Eigen::Matrix<double, 7, 1>;
+  const int n = side * side;
+  const float centre = 0.5f * (side - 1);
+  // Steepest-descent images (g, g_x q, g_y q, 1) at the identity warp, one row of n each.
+  descent->resize(7 * n);
+  float* sd = descent->data();
+  for (int j = 0, k = 0; j < side; ++j) {
+    for (int i = 0; i < side; ++i, ++k) {
+      const float qx = i - centre, qy = j - centre;
+      sd[k] = gxs[k];
+      sd[n + k] = gys[k];
+      sd[2 * n + k] = gxs[k] * qx;
+      sd[3 * n + k] = gxs[k] * qy;
+      sd[4 * n + k] = gys[k] * qx;
+      sd[5 * n + k] = gys[k] * qy;
+      sd[6 * n + k] = offset ? used[k] : 0.f;
+    }
+  }
+  const Eigen::Map<const Eigen::Matrix<float, 7, Eigen::Dynamic, Eigen::RowMajor>> rows(sd, 7, n);
+  Mat7 H = rows.lazyProduct(rows.transpose()).cast<double>();
+  if (!offset) H(6, 6) = 1;
+  const Eigen::LLT<Mat7> llt(H);
+  if (llt.info() != Eigen::Success) return;
+  const float max_x = grey_b.cols - 1.001f, max_y = grey_b.rows - 1.001f;
+  const size_t step_b = grey_b.step[0];
+  float d[2] = {*dx, *dy}, G[4] = {0, 0, 0, 0};
+  for (int it = 0; it < options.affine_iterations; ++it) {
+    float rhs[7] = {0, 0, 0, 0, 0, 0, 0};
+    for (int j = 0, k = 0; j < side; ++j) {
+      const float qy = j - centre;
+      // Row start and per-pixel step of the warped position.
+      float x = xa + d[0] - centre * G[0] + G[1] * qy;
+      float y = ya + j + d[1] - centre * G[2] + G[3] * qy;
+      const float step_x = 1 + G[0], step_y = G[2];
+      for (int i = 0; i < side; ++i, ++k, x += step_x, y += step_y) {
+        if (!(x >= 0 && y >= 0 && x < max_x && y < max_y)) return;
+        const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
+        const float ax = x - x0, ay = y - y0;
+        const uint8_t* r0 = grey_b.data + y0 * step_b + x0;
+        const uint8_t* r1 = r0 + step_b;
+        const float r = (1 - ay) * ((1 - ax) * r0[0] + ax * r0[1]) +
+                        ay * ((1 - ax) * r1[0] + ax * r1[1]) - ia[k];
+        for (int c = 0; c < 7; ++c) rhs[c] += sd[c * n + k] * r;
+      }
+    }
+    const Vec7 step = llt.solve(Eigen::Map<const Eigen::Matrix<float, 7, 1>>(rhs).cast<double>());
+    d[0] -= static_cast<float>(step(0));
+    d[1] -= static_cast<float>(step(1));
+    for (int c = 0; c < 4; ++c) G[c] -= static_cast<float>(step(2 + c));
+    if (!std::isfinite(d[0]) || !std::isfinite(d[1])) return;
+    if (step.head<2>().squaredNorm() < options.converged_px * options.converged_px) break;
+  }
+  *dx = d[0];
+  *dy = d[1];
+}
+
+}  // namespace
+
 int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::Mat& grey_b,
                   int cell, const RefineOptions& options, cv::Mat* target, cv::Mat* weight,
                   const cv::Mat& moving_a) {
@@ -34,7 +103,7 @@ int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::M
   const int m = options.margin;
   const int side = cell + 2 * m;
   const int n = side * side;
-  std::vector<float> ia(n), gxs(n), gys(n), used(n);
+  std::vector<float> ia(n), gxs(n), gys(n), used(n), descent;
   const bool offset = options.brightness_offset;
   int refined = 0;
   for (int v = 0; v < target->rows; ++v) {
@@ -115,6 +184,10 @@ int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::M
         dx -= static_cast<float>(step(0));
         dy -= static_cast<float>(step(1));
         if (step.head<2>().squaredNorm() < options.converged_px * options.converged_px) break;
+      }
+      if (ok && options.affine_iterations > 0) {
+        refineAffine(grey_b, side, xa, ya, ia.data(), gxs.data(), gys.data(), used.data(), offset,
+                     options, &descent, &dx, &dy);
       }
       const float mx = dx - dx0, my = dy - dy0;
       if (!ok || !std::isfinite(dx) || !std::isfinite(dy) || mx * mx + my * my > max_shift2) {

@@ -800,13 +800,14 @@ void Tracker::Impl::makeKeyframe(const Frame& frame, const PreparedImage& image,
 Correspondences Tracker::Impl::correspond(const cv::Mat& grey_a, const cv::Mat& gradients_a,
                                           const cv::Mat& structure_a, const cv::Mat& grey_b,
                                           const cv::Mat& flow_ab, const cv::Mat& flow_ba,
-                                          const cv::Mat& moving_a, const cv::Mat& moving_b) const {
+                                          const cv::Mat& moving_a, const cv::Mat& moving_b,
+                                          const RefineOptions* refine) const {
   const GridGeometry& g = preparer->geometry();
   Correspondences c = flowToCorrespondences(grey_a, grey_b, flow_ab, flow_ba, structure_a, g,
                                             flow_options, moving_a, moving_b);
   if (p.refine_iterations > 0) {
-    refineTargets(grey_a, gradients_a, grey_b, g.cell, refine_options, &c.target, &c.weight,
-                  moving_a);
+    refineTargets(grey_a, gradients_a, grey_b, g.cell, refine ? *refine : refine_options, &c.target,
+                  &c.weight, moving_a);
   }
   return c;
 }
@@ -826,9 +827,15 @@ std::pair<Correspondences, Correspondences> Tracker::Impl::measureBothWays(int a
   auto gradients = [](const KeyframeData& k) {
     return k.gradients.empty() ? imageGradients(k.grey) : k.gradients;
   };
-  return {
-      correspond(ka.grey, gradients(ka), ka.structure, kb.grey, f_ab, f_ba, ka.moving, kb.moving),
-      correspond(kb.grey, gradients(kb), kb.structure, ka.grey, f_ba, f_ab, kb.moving, ka.moving)};
+  // The affine fit on the pairs that BA re-measures from its own prediction (the last word on
+  // every edge of a new keyframe); the first, coarse round only seeds that prediction.
+  RefineOptions pair_refine = refine_options;
+  if (mode == TrackerMode::kRgbd && warm_start == WarmStart::kWarp)
+    pair_refine.affine_iterations = p.rgbd_pair_affine_iterations;
+  return {correspond(ka.grey, gradients(ka), ka.structure, kb.grey, f_ab, f_ba, ka.moving,
+                     kb.moving, &pair_refine),
+          correspond(kb.grey, gradients(kb), kb.structure, ka.grey, f_ba, f_ab, kb.moving,
+                     ka.moving, &pair_refine)};
 }
 
 void Tracker::Impl::measurePair(int a, int b, WarmStart warm_start) {

@@ -93,6 +93,10 @@ struct TrackerParams {
   int refine_iterations = 4;             // 0 = off
   double refine_max_shift_px = 3.0;      // working px from the DIS target; further: weight 0
   bool refine_brightness_offset = true;  // per-cell offset (auto-exposure)
+  // RGB-D: affine Lucas-Kanade iterations after the translation on the keyframe pairs BA
+  // re-measures (RefineOptions::affine_iterations; 0 = none). The sensor prior fixes the scale,
+  // so a flow measured short becomes a trajectory too short.
+  int rgbd_pair_affine_iterations = 4;
 
   // Keyframes and window.
   double keyframe_flow_px = 2.5;  // grid px, mean parallax to the last keyframe

@@ -86,11 +86,13 @@ struct Tracker::Impl {
   PoseStamped poseMessage(const FrameRecord& r) const;
 
   /// Grid correspondences a -> b from the flows (confidence from both), refined per cell.
-  /// Pixels of moving objects (working-size masks, may be empty) are left out.
+  /// Pixels of moving objects (working-size masks, may be empty) are left out. `refine`:
+  /// options other than refine_options (keyframe pairs).
   Correspondences correspond(const cv::Mat& grey_a, const cv::Mat& gradients_a,
                              const cv::Mat& structure_a, const cv::Mat& grey_b,
                              const cv::Mat& flow_ab, const cv::Mat& flow_ba,
-                             const cv::Mat& moving_a, const cv::Mat& moving_b) const;
+                             const cv::Mat& moving_a, const cv::Mat& moving_b,
+                             const RefineOptions* refine = nullptr) const;
 
   // Keyframe pairs, BA and output.
   /// Flow a -> b and b -> a warm-started from the current estimate, as correspondences.

@@ -80,6 +80,7 @@ void validateTrackerParams(const TrackerParams& p) {
         "conf_fb_max_px, conf_photo_max, conf_photo_scale must be > 0");
   check(p.refine_iterations >= 0 && p.refine_max_shift_px > 0,
         "refine_iterations >= 0, refine_max_shift_px > 0");
+  check(p.rgbd_pair_affine_iterations >= 0, "rgbd_pair_affine_iterations >= 0");
   check(p.keyframe_flow_px > 0, "keyframe_flow_px must be > 0");
   check(p.mono_keyframe_flow_px > 0, "mono_keyframe_flow_px must be > 0");
   check(p.keyframe_rotation_px > 0, "keyframe_rotation_px must be > 0");
@@ -183,6 +184,7 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("refine_iterations", &p.refine_iterations);
   r.get("refine_max_shift_px", &p.refine_max_shift_px);
   r.get("refine_brightness_offset", &p.refine_brightness_offset);
+  r.get("rgbd_pair_affine_iterations", &p.rgbd_pair_affine_iterations);
   r.get("keyframe_flow_px", &p.keyframe_flow_px);
   r.get("mono_keyframe_flow_px", &p.mono_keyframe_flow_px);
   r.get("keyframe_rotation_px", &p.keyframe_rotation_px);

@@ -13,6 +13,7 @@
 #include "tracker/frontend_depth.h"
 #include "tracker/frontend_flow.h"
 #include "tracker/frontend_refine.h"
+#include "tracker/motion_only.h"
 
 namespace radslam {
 namespace {
@@ -27,6 +28,12 @@ CameraModel pinhole(int w, int h, double f) {
   c.cx = 0.5 * (w - 1);
   c.cy = 0.5 * (h - 1);
   return c;
+}
+
+double quantile(std::vector<double> values, double q) {
+  if (values.empty()) return std::numeric_limits<double>::infinity();
+  std::sort(values.begin(), values.end());
+  return values[static_cast<size_t>(q * (values.size() - 1))];
 }
 
 TEST(GridGeometry, PixelCentreConvention) {
@@ -109,6 +116,31 @@ TEST(ImagePreparer, RejectsBadFrames) {
   f.camera = cam;
   f.right = f.color.clone();
   EXPECT_THROW(prep.prepare(f, false), std::invalid_argument);  // right without baseline
+}
+
+TEST(SensorDepthToGrid, ASlantedPlaneGivesEachCellItsCentresDepth) {
+  // Inverse depth is linear in the pixel across a plane (here a road-like slope down the rows
+  // and a facade-like one along them); each cell must get the depth at its centre, working
+  // pixel 8 u + 3.5, which neither middle value of its 64 depths has on its own.
+  const auto inv_depth = [](double x, double y) { return 0.02 + 0.002 * y + 0.0005 * x; };
+  cv::Mat depth(64, 96, CV_32FC1);
+  for (int y = 0; y < depth.rows; ++y)
+    for (int x = 0; x < depth.cols; ++x) depth.at<float>(y, x) = 1.0 / inv_depth(x, y);
+  depth.at<float>(5, 83) = 0;   // one invalid pixel: the odd count's plain median
+  for (int y = 8; y < 16; ++y)  // a cell with too few valid pixels
+    for (int x = 0; x < 6; ++x) depth.at<float>(y, x) = 0;
+  const cv::Mat grid = sensorDepthToGrid(depth, kCell, 0.5, 0.1, 1000);
+  ASSERT_EQ(grid.size(), cv::Size(12, 8));
+  EXPECT_EQ(grid.at<float>(1, 0), 0.0f);
+  for (int v = 0; v < grid.rows; ++v) {
+    for (int u = 0; u < grid.cols; ++u) {
+      if (v == 1 && u == 0) continue;
+      const double centre = inv_depth(kCell * u + 3.5, kCell * v + 3.5);
+      // The odd cell's median lies within half a pixel's slope of the centre.
+      const double tolerance = (v == 0 && u == 10) ? 0.5 * 0.0025 : 1e-6;
+      EXPECT_NEAR(1.0 / grid.at<float>(v, u), centre, tolerance) << "cell " << u << "," << v;
+    }
+  }
 }
 
 TEST(Keyframes, SelectionTriggersAtTheThreshold) {
@@ -328,6 +360,115 @@ TEST(Flow, CellRefinementRemovesTheZoomBias) {
   EXPECT_LT(std::abs(zoom_lk - s), std::abs(zoom_dis - s));
   EXPECT_LT(median_lk, 0.01) << "grid px";
   EXPECT_LE(median_lk, median_dis);
+}
+
+TEST(Flow, AffineRefinementFollowsATurningZoom) {
+  // b is a turned by 4 deg and zoomed by 4 % about the image centre: the flow changes across
+  // each cell, so a translation fitted to a cell lands off the centre's flow by the flow
+  // gradient times the offset of the cell's gradient-weighted point; the affine fit does not.
+  const GridGeometry g = makeGridGeometry(pinhole(256, 192, 200), kCell);
+  const cv::Mat a = texture(cv::Size(256, 192), 7);
+  const cv::Point2f centre(127.5f, 95.5f);
+  const cv::Mat M = cv::getRotationMatrix2D(centre, 4.0, 1.04);
+  cv::Mat b;
+  cv::warpAffine(a, b, M, a.size(), cv::INTER_CUBIC, cv::BORDER_REFLECT);
+  FlowOptions options;
+  DenseFlow flow(options);
+  auto warped = [&](double x, double y) {  // where working pixel (x, y) of a lands in b
+    return cv::Vec2d(M.at<double>(0, 0) * x + M.at<double>(0, 1) * y + M.at<double>(0, 2),
+                     M.at<double>(1, 0) * x + M.at<double>(1, 1) * y + M.at<double>(1, 2));
+  };
+  cv::Mat init(a.size(), CV_32FC2);  // DIS starts from the true flow
+  for (int y = 0; y < init.rows; ++y)
+    for (int x = 0; x < init.cols; ++x) {
+      const cv::Vec2d p = warped(x, y);
+      init.at<cv::Vec2f>(y, x) = cv::Vec2f(p[0] - x, p[1] - y);
+    }
+  const Correspondences c =
+      flowToCorrespondences(a, b, flow.compute(a, b, init), flow.compute(b, a, -init), g, options);
+  auto medianError = [&](int affine_iterations) {
+    RefineOptions refine;
+    refine.affine_iterations = affine_iterations;
+    cv::Mat target = c.target.clone(), weight = c.weight.clone();
+    refineTargets(a, imageGradients(a), b, kCell, refine, &target, &weight);
+    std::vector<double> errors;
+    for (int v = 2; v < target.rows - 2; ++v) {
+      for (int u = 2; u < target.cols - 2; ++u) {
+        if (!(weight.at<cv::Vec2f>(v, u)[0] > 0)) continue;
+        const cv::Vec2d p = warped(kCell * u + 3.5, kCell * v + 3.5);
+        const cv::Vec2f t = target.at<cv::Vec2f>(v, u);
+        errors.push_back(std::hypot(kCell * t[0] + 3.5 - p[0], kCell * t[1] + 3.5 - p[1]));
+      }
+    }
+    EXPECT_GT(errors.size(), 400u);
+    return quantile(errors, 0.5);
+  };
+  const double translation = medianError(0), affine = medianError(2);
+  RecordProperty("translation_median_px", std::to_string(translation));
+  RecordProperty("affine_median_px", std::to_string(affine));
+  EXPECT_LT(affine, 0.35 * translation) << "translation " << translation << ", affine " << affine;
+  EXPECT_LT(affine, 0.06) << "working px";
+}
+
+// Forward along the noise-free street with the true depth on each keyframe's grid: the
+// translation of a frame aligned motion-only against the keyframe comes out short with
+// translation-only refinement (the road's flow grows across each cell, and a translation
+// measures it off the cell's centre); the affine refinement measures the centres.
+TEST(Flow, AffineRefinementKeepsTheStreetsTranslationLength) {
+  SyntheticConfig config;
+  config.scene = "large";
+  config.width = 512;
+  config.height = 384;
+  config.frames = 150;
+  config.seed = 3;
+  config.fps = 30;
+  config.stereo = false;
+  config.freeze_objects = true;
+  const SyntheticScene scene = SyntheticScene::make(config);
+  const CameraModel cam = scene.camera();
+  const GridGeometry g = makeGridGeometry(cam, kCell);
+  FlowOptions flow_options;
+  flow_options.finest_scale = 1;  // the tracker's
+  DenseFlow flow(flow_options);
+  MotionOnlyOptions align_options;
+  align_options.robust_kernel = RobustKernel::kCauchy;
+  align_options.max_iterations = 30;
+  const MotionOnlyAligner aligner(align_options);
+  double error_translation = 0, error_affine = 0;
+  const std::vector<int> firsts = {23, 36, 62, 75, 101};
+  for (const int fa : firsts) {
+    const int fb = fa + 3;
+    const SE3 T_world_a = scene.cameraPose(fa), T_world_b = scene.cameraPose(fb);
+    const RenderedView va = scene.render(T_world_a, cam, fa);
+    const cv::Mat a = toGrey(va.color), b = toGrey(scene.render(T_world_b, cam, fb).color);
+    DenseBaKeyframe keyframe;
+    cv::Mat unused_var;
+    depthPrior(sensorDepthToGrid(va.depth, kCell, 0.5, 0.1, 20.0), 1, 0, 0, &keyframe.inv_depth,
+               &unused_var);
+    const SE3 T_b_a = T_world_b.inverse() * T_world_a;
+    // DIS warm-started from the true flow, as the tracker starts it from its prediction.
+    const cv::Mat predicted =
+        predictedFlow(reprojectKeyframe(g.grid, keyframe, T_b_a.inverse(), 0.2), g);
+    const Correspondences c = flowToCorrespondences(
+        a, b, flow.compute(a, b, predicted), flow.compute(b, a, -predicted), g, flow_options);
+    for (const int affine_iterations : {0, 2}) {
+      RefineOptions refine;
+      refine.affine_iterations = affine_iterations;
+      MotionOnlyEdge edge;
+      edge.target = c.target.clone();
+      edge.weight = c.weight.clone();
+      refineTargets(a, imageGradients(a), b, kCell, refine, &edge.target, &edge.weight);
+      const MotionOnlyResult r = aligner.align(g.grid, {keyframe}, {edge}, T_b_a.inverse());
+      ASSERT_TRUE(r.ok) << r.error;
+      const double ratio = r.T_world_frame.translation().norm() / T_b_a.translation().norm();
+      (affine_iterations ? error_affine : error_translation) += (ratio - 1) / firsts.size();
+    }
+  }
+  RecordProperty("translation_length_error", std::to_string(error_translation));
+  RecordProperty("affine_length_error", std::to_string(error_affine));
+  EXPECT_LT(error_translation, -0.003) << "the street should show the bias";
+  EXPECT_LT(std::abs(error_affine), 0.5 * std::abs(error_translation))
+      << "translation-only " << error_translation << ", affine " << error_affine;
 }
 
 // True grid target of each cell of a: the mean over the cell of the exact reprojection of its
@@ -596,12 +737,6 @@ StereoDepthErrors semiGlobalErrors(const std::string& scene_name, double baselin
   out.measured = static_cast<double>(out.all.size()) / std::max(total, 1);
   out.border_measured = static_cast<double>(out.border.size()) / std::max(border_total, 1);
   return out;
-}
-
-double quantile(std::vector<double> values, double q) {
-  if (values.empty()) return std::numeric_limits<double>::infinity();
-  std::sort(values.begin(), values.end());
-  return values[static_cast<size_t>(q * (values.size() - 1))];
 }
 
 TEST(SemiGlobalStereoDepth, MatchesTheTrueDepthUpToTheLeftBorder) {
