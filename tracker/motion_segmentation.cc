@@ -334,14 +334,16 @@ cv::Mat MotionSegmenter::segment(const cv::Mat& measured, const cv::Mat& predict
         if (e > max_carry_error) ++failed[r];
       }
   }
+  std::vector<bool> flow_failed(n_regions);
+  for (int r = 0; r < n_regions; ++r)
+    flow_failed[r] = failed[r] > params_.carry_max_failed_fraction * checked[r];
   cv::Mat moving_b(measured.size(), CV_8UC1, cv::Scalar(0));
   for (int y = 0; y < H; ++y) {
     const cv::Vec2f* m = measured.ptr<cv::Vec2f>(y);
     const uint8_t* moving = moving_a.ptr<uint8_t>(y);
     for (int x = 0; x < W; ++x) {
       if (!moving[x]) continue;
-      const int r = regions.at<int>(y, x);
-      if (failed[r] > params_.carry_max_failed_fraction * checked[r] && flow_only(y, x)) continue;
+      if (flow_failed[regions.at<int>(y, x)] && flow_only(y, x)) continue;
       const int xb = static_cast<int>(std::lround(x + m[x][0]));
       const int yb = static_cast<int>(std::lround(y + m[x][1]));
       if (xb >= 0 && yb >= 0 && xb < W && yb < H) moving_b.at<uint8_t>(yb, xb) = 255;
