@@ -25,12 +25,13 @@ namespace {
 // Affine Lucas-Kanade on one cell from the translation (dx, dy) found: pixel x of a's window
 // (offset q from the window centre) is matched at x + d + G q in b, so d is the flow at the
 // centre itself, where BA puts it. Leaves (dx, dy) unchanged when the window leaves b or the
-// system is singular. descent: scratch of 7 x side^2.
-void refineAffine(const cv::Mat& grey_b, int side, int xa, int ya, const float* ia,
+// system is singular. grey_b_float: image b as CV_32FC1; descent, residual: scratch of
+// 7 x side^2 and side^2.
+void refineAffine(const cv::Mat& grey_b_float, int side, int xa, int ya, const float* ia,
                   const float* gxs, const float* gys, const float* used, bool offset,
-                  const RefineOptions& options, std::vector<float>* descent, float* dx, float* dy) {
-  using Mat7 = Eigen::Matrix<double, 7, 7>;
-  using Vec7 = Eigen::Matrix<double, 7, 1>;
+                  const RefineOptions& options, std::vector<float>* descent,
+                  std::vector<float>* residual, float* dx, float* dy) {
+  using Mat7f = Eigen::Matrix<float, 7, 7>;
   const int n = side * side;
   const float centre = 0.5f * (side - 1);
   // Steepest-descent images (g, g_x q, g_y q, 1) at the identity warp, one row of n each.
@@ -48,16 +49,22 @@ void refineAffine(const cv::Mat& grey_b, int side, int xa, int ya, const float* 
       sd[6 * n + k] = offset ? used[k] : 0.f;
     }
   }
-  const Eigen::Map<const Eigen::Matrix<float, 7, Eigen::Dynamic, Eigen::RowMajor>> rows(sd, 7, n);
-  Mat7 H = rows.lazyProduct(rows.transpose()).cast<double>();
+  // Each entry a vectorised dot product of two rows; only the lower triangle is read.
+  const auto row = [&](int c) { return Eigen::Map<const Eigen::VectorXf>(sd + c * n, n); };
+  Mat7f H;
+  for (int a = 0; a < 7; ++a) {
+    for (int b = 0; b <= a; ++b) H(a, b) = row(a).dot(row(b));
+  }
   if (!offset) H(6, 6) = 1;
-  const Eigen::LLT<Mat7> llt(H);
+  const Eigen::LLT<Mat7f> llt(H);
   if (llt.info() != Eigen::Success) return;
-  const float max_x = grey_b.cols - 1.001f, max_y = grey_b.rows - 1.001f;
-  const size_t step_b = grey_b.step[0];
+  const float max_x = grey_b_float.cols - 1.001f, max_y = grey_b_float.rows - 1.001f;
+  const size_t step_b = grey_b_float.step[0] / sizeof(float);
+  const float* b = grey_b_float.ptr<float>();
   float d[2] = {*dx, *dy}, G[4] = {0, 0, 0, 0};
+  residual->resize(n);
+  float* res = residual->data();
   for (int it = 0; it < options.affine_iterations; ++it) {
-    float rhs[7] = {0, 0, 0, 0, 0, 0, 0};
     for (int j = 0, k = 0; j < side; ++j) {
       const float qy = j - centre;
       // Row start and per-pixel step of the warped position.
@@ -68,17 +75,19 @@ void refineAffine(const cv::Mat& grey_b, int side, int xa, int ya, const float* 
         if (!(x >= 0 && y >= 0 && x < max_x && y < max_y)) return;
         const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
         const float ax = x - x0, ay = y - y0;
-        const uint8_t* r0 = grey_b.data + y0 * step_b + x0;
-        const uint8_t* r1 = r0 + step_b;
-        const float r = (1 - ay) * ((1 - ax) * r0[0] + ax * r0[1]) +
-                        ay * ((1 - ax) * r1[0] + ax * r1[1]) - ia[k];
-        for (int c = 0; c < 7; ++c) rhs[c] += sd[c * n + k] * r;
+        const float* r0 = b + y0 * step_b + x0;
+        const float* r1 = r0 + step_b;
+        res[k] = (1 - ay) * ((1 - ax) * r0[0] + ax * r0[1]) + ay * ((1 - ax) * r1[0] + ax * r1[1]) -
+                 ia[k];
       }
     }
-    const Vec7 step = llt.solve(Eigen::Map<const Eigen::Matrix<float, 7, 1>>(rhs).cast<double>());
-    d[0] -= static_cast<float>(step(0));
-    d[1] -= static_cast<float>(step(1));
-    for (int c = 0; c < 4; ++c) G[c] -= static_cast<float>(step(2 + c));
+    const Eigen::Map<const Eigen::VectorXf> r(res, n);
+    Eigen::Matrix<float, 7, 1> rhs;
+    for (int c = 0; c < 7; ++c) rhs(c) = row(c).dot(r);
+    const Eigen::Matrix<float, 7, 1> step = llt.solve(rhs);
+    d[0] -= step(0);
+    d[1] -= step(1);
+    for (int c = 0; c < 4; ++c) G[c] -= step(2 + c);
     if (!std::isfinite(d[0]) || !std::isfinite(d[1])) return;
     if (step.head<2>().squaredNorm() < options.converged_px * options.converged_px) break;
   }
@@ -103,7 +112,9 @@ int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::M
   const int m = options.margin;
   const int side = cell + 2 * m;
   const int n = side * side;
-  std::vector<float> ia(n), gxs(n), gys(n), used(n), descent;
+  std::vector<float> ia(n), gxs(n), gys(n), used(n), descent, residual;
+  cv::Mat grey_b_float;  // the affine step samples b at a different offset per pixel
+  if (options.affine_iterations > 0) grey_b.convertTo(grey_b_float, CV_32F);
   const bool offset = options.brightness_offset;
   int refined = 0;
   for (int v = 0; v < target->rows; ++v) {
@@ -186,8 +197,8 @@ int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::M
         if (step.head<2>().squaredNorm() < options.converged_px * options.converged_px) break;
       }
       if (ok && options.affine_iterations > 0) {
-        refineAffine(grey_b, side, xa, ya, ia.data(), gxs.data(), gys.data(), used.data(), offset,
-                     options, &descent, &dx, &dy);
+        refineAffine(grey_b_float, side, xa, ya, ia.data(), gxs.data(), gys.data(), used.data(),
+                     offset, options, &descent, &residual, &dx, &dy);
       }
       const float mx = dx - dx0, my = dy - dy0;
       if (!ok || !std::isfinite(dx) || !std::isfinite(dy) || mx * mx + my * my > max_shift2) {

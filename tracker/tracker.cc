@@ -79,6 +79,8 @@ Tracker::Impl::Impl(const TrackerParams& params, TrackerMode m)
   ba_options.robust_kernel = parseRobustKernel(p.robust_kernel);
   ba_options.robust_scale = p.robust_scale;
   ba_options.min_depth_ratio = p.min_depth_ratio;
+  ba_options.min_inv_depth =
+      mode == TrackerMode::kRgbd ? p.rgbd_ba_min_inv_depth : p.ba_min_inv_depth;
   ba.setOptions(ba_options);
 }
 

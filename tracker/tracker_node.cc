@@ -102,6 +102,8 @@ void validateTrackerParams(const TrackerParams& p) {
         "robust_kernel must be huber or cauchy");
   check(p.robust_scale >= 0, "robust_scale must be >= 0 (0 = none)");
   check(p.min_depth_ratio > 0 && p.min_depth_ratio < 1, "min_depth_ratio in (0, 1)");
+  check(p.ba_min_inv_depth > 0 && p.rgbd_ba_min_inv_depth > 0,
+        "ba_min_inv_depth and rgbd_ba_min_inv_depth must be > 0");
   check(p.mono_gauge == "first_pose" || p.mono_gauge == "first_pose_and_scale" ||
             p.mono_gauge == "first_two_poses",
         "mono_gauge must be first_pose, first_pose_and_scale or first_two_poses");
@@ -207,6 +209,8 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("robust_kernel", &p.robust_kernel);
   r.get("robust_scale", &p.robust_scale);
   r.get("min_depth_ratio", &p.min_depth_ratio);
+  r.get("ba_min_inv_depth", &p.ba_min_inv_depth);
+  r.get("rgbd_ba_min_inv_depth", &p.rgbd_ba_min_inv_depth);
   r.get("mono_gauge", &p.mono_gauge);
   r.get("mono_prior_mean", &p.mono_prior_mean);
   r.get("init_inv_depth", &p.init_inv_depth);

@@ -284,6 +284,37 @@ TEST(DenseBa, StereoEdgesFixTheMetricScale) {
   EXPECT_GT(poseError(s.T_world_cam[3], mono.keyframes[3].T_world_cam).head<3>().norm(), 0.1);
 }
 
+TEST(DenseBa, PointsFartherThanTheDepthLimitBendThePoses) {
+  // The top third of the view lies 2 km away (clouds), beyond a limit of 100 m: held there, it
+  // shows parallax the targets do not have, and the poses absorb it. A farther limit lets BA
+  // reach the ground truth.
+  std::mt19937 rng(12);
+  test::SyntheticScene s = makeScene(4, 24, 18, 20.0, &rng, 0.3);
+  for (cv::Mat& d : s.inv_depth) d.rowRange(0, 6).setTo(1.0 / 2000.0);
+  const SE3 T_left_right(SO3(), Vec3(0.1, 0, 0));
+  auto solve = [&](double min_inv_depth) {
+    std::mt19937 problem_rng(13);
+    DenseBaProblem prob = makeProblem(s, 0.0, &problem_rng, 1);
+    for (int k = 0; k < 4; ++k)
+      prob.edges.push_back(makeEdge(s, k, -1, 0.0, 1.0, &problem_rng, &T_left_right));
+    for (int k = 1; k < 4; ++k) test::perturbPose(&prob.keyframes[k].T_world_cam, 0.01, 0.02, &rng);
+    DenseBaOptions opt;
+    opt.gauge = DenseBaGauge::kFirstPose;
+    opt.max_iterations = 80;
+    opt.min_inv_depth = min_inv_depth;
+    DenseBundleAdjuster ba(opt);
+    const DenseBaSummary sum = ba.optimize(&prob);
+    EXPECT_TRUE(sum.ok) << sum.error;
+    double worst_rad = 0;
+    for (int k = 1; k < 4; ++k)
+      worst_rad = std::max(
+          worst_rad, poseError(s.T_world_cam[k], prob.keyframes[k].T_world_cam).tail<3>().norm());
+    return worst_rad;
+  };
+  EXPECT_GT(solve(1e-2), 1e-5);
+  EXPECT_LT(solve(1e-5), 1e-7);
+}
+
 TEST(DenseBa, HuberKernelResistsOutliers) {
   std::mt19937 rng(9);
   const test::SyntheticScene s = makeScene(4, 24, 18, 20.0, &rng, 0.3);
