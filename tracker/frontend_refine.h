@@ -29,8 +29,8 @@ struct RefineOptions {
   bool reject_failures = true;    // a cell that cannot be refined gets weight 0
   // Then affine Lucas-Kanade iterations (0 = none): displacement, its gradient across the
   // window and the offset, with the displacement at the window centre, where BA puts it (a
-  // translation measured the forward flow of a road ahead short). About 1.7 ms per iteration
-  // on a 512x384 street pair, against 1.6 ms for the whole translation.
+  // translation measured the forward flow of a road ahead short). 4 iterations take about
+  // 2.7x the time of the whole translation on a 512x384 street pair (docs/tracker.md).
   int affine_iterations = 0;
 };
 
