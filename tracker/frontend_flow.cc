@@ -85,7 +85,7 @@ cv::Mat DenseFlow::compute(const cv::Mat& grey_a, const cv::Mat& grey_b, const c
   // prediction: a(x) ~ b_w(x + r(x)) = b(x + r(x) + init(x + r(x))).
   cv::Mat smooth_init = init;
   if (options_.warp_smoothing_px > 0) {
-    cv::GaussianBlur(init, smooth_init, cv::Size(0, 0), options_.warp_smoothing_px);
+    smooth_init = wideGaussianBlur(init, options_.warp_smoothing_px);
   }
   cv::Mat warped;
   cv::remap(b, warped, flowTargetMap(smooth_init), cv::noArray(), cv::INTER_LINEAR,
@@ -96,6 +96,28 @@ cv::Mat DenseFlow::compute(const cv::Mat& grey_a, const cv::Mat& grey_b, const c
   cv::remap(smooth_init, init_at_target, flowTargetMap(residual), cv::noArray(), cv::INTER_LINEAR,
             cv::BORDER_REPLICATE);
   return residual + init_at_target;
+}
+
+cv::Mat wideGaussianBlur(const cv::Mat& field, double sigma_px) {
+  CV_Assert(sigma_px > 0 && !field.empty());
+  const int k = std::clamp(static_cast<int>(sigma_px / 3), 1, 4);
+  if (k == 1) {
+    cv::Mat out;
+    cv::GaussianBlur(field, out, cv::Size(0, 0), sigma_px);
+    return out;
+  }
+  // Padded by the kernel's reach (and to a multiple of k), so that the reflected border is the
+  // full-resolution one and the blocks tile the image exactly.
+  const int pad = k * static_cast<int>(std::ceil(3 * sigma_px / k));
+  cv::Mat padded, blocks, up;
+  cv::copyMakeBorder(field, padded, pad, pad + (k - field.rows % k) % k, pad,
+                     pad + (k - field.cols % k) % k, cv::BORDER_REFLECT_101);
+  cv::resize(padded, blocks, cv::Size(padded.cols / k, padded.rows / k), 0, 0, cv::INTER_AREA);
+  // The block mean adds a variance of k^2 / 12 (working px^2), the bilinear upsampling k^2 / 6.
+  const double block_sigma = std::sqrt(std::max(sigma_px * sigma_px - 0.25 * k * k, 0.25)) / k;
+  cv::GaussianBlur(blocks, blocks, cv::Size(0, 0), block_sigma);
+  cv::resize(blocks, up, padded.size(), 0, 0, cv::INTER_LINEAR);
+  return up(cv::Rect(pad, pad, field.cols, field.rows)).clone();
 }
 
 cv::Mat predictedFlow(const cv::Mat& grid_targets, const GridGeometry& geometry) {

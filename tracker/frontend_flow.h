@@ -105,6 +105,14 @@ class DenseFlow {
 /// outside the image (remap then gives the border value). flow: CV_32FC2.
 cv::Mat flowTargetMap(const cv::Mat& flow);
 
+/// Gaussian blur (sigma_px, reflected border) of a smooth field such as a predicted flow, at a
+/// fraction of cv::GaussianBlur's cost for a wide sigma: the field is padded, averaged over k x k
+/// blocks (k up to 4, about sigma / 3), blurred there and upsampled bilinearly, with the blocks'
+/// and the interpolation's own spread taken off the sigma. Off cv::GaussianBlur by under 0.02 px
+/// for sigma 12 on a flow that jumps by 4 px from grid cell to grid cell, 10x faster
+/// (384 x 288, CV_32FC2). Any type cv::GaussianBlur takes; sigma_px > 0.
+cv::Mat wideGaussianBlur(const cv::Mat& field, double sigma_px);
+
 /// Working-resolution flow predicted by grid targets (CV_32FC2 grid, location in b's grid;
 /// NaN where there is no prediction): flow = cell * (target - p), non-finite entries replaced
 /// by the median of the finite ones (0 if none), upsampled bilinearly (pixel-centre convention

@@ -238,6 +238,34 @@ TEST(Flow, PredictedFlowFollowsTheGridConvention) {
   EXPECT_TRUE(predictedFlow(cv::Mat(), g).empty());
 }
 
+TEST(Flow, WideGaussianBlurMatchesTheFullResolutionBlur) {
+  // A predicted flow with zoom and 4 px of noise per grid cell (a prediction from noisy
+  // depths), at working sizes that are and are not multiples of the block size.
+  for (const cv::Size size : {cv::Size(384, 288), cv::Size(250, 187)}) {
+    cv::Mat grid(size.height / kCell, size.width / kCell, CV_32FC2);
+    cv::RNG rng(3);
+    for (int v = 0; v < grid.rows; ++v) {
+      for (int u = 0; u < grid.cols; ++u) {
+        grid.at<cv::Vec2f>(v, u) = cv::Vec2f(0.4 * (u - grid.cols / 2) + rng.gaussian(4),
+                                             0.6 * (v - grid.rows / 2) + rng.gaussian(4));
+      }
+    }
+    cv::Mat flow;
+    cv::resize(grid, flow, size, 0, 0, cv::INTER_LINEAR);
+    for (const double sigma : {2.0, 7.0, 12.0, 20.0}) {
+      cv::Mat reference;
+      cv::GaussianBlur(flow, reference, cv::Size(0, 0), sigma);
+      const cv::Mat fast = wideGaussianBlur(flow, sigma);
+      ASSERT_EQ(fast.size(), flow.size());
+      ASSERT_EQ(fast.type(), flow.type());
+      cv::Mat diff = cv::abs(fast - reference);
+      double max_diff = 0;
+      cv::minMaxLoc(diff.reshape(1), nullptr, &max_diff);
+      EXPECT_LT(max_diff, 0.03) << size << " sigma " << sigma;  // working px
+    }
+  }
+}
+
 // Textured images with a textured square that moves over the background: the background the
 // square covers in b has no match (occlusion), everything else is a pure translation.
 struct OcclusionPair {
