@@ -362,20 +362,25 @@ cv::Mat Undistorter::apply(const cv::Mat& image, int interpolation) const {
 cv::Mat rotateDepth(const cv::Mat& depth, const CameraModel& camera, const Mat3& R_colour_depth) {
   cv::Mat out(depth.size(), CV_32FC1, cv::Scalar(0));
   const Mat3 R_depth_colour = R_colour_depth.transpose();
+  // The colour pixel's ray in the depth camera, linear in x along a row.
+  const Vec3 ray_step = R_depth_colour.col(0) / camera.fx;
+  const double max_x = depth.cols - 0.5, max_y = depth.rows - 0.5;
   for (int y = 0; y < depth.rows; ++y) {
     float* z_out = out.ptr<float>(y);
+    const Vec3 ray_start =
+        R_depth_colour * Vec3(-camera.cx / camera.fx, (y - camera.cy) / camera.fy, 1.0);
     for (int x = 0; x < depth.cols; ++x) {
-      // The colour pixel's ray in the depth camera; the depth pixel it crosses.
-      const Vec3 ray =
-          R_depth_colour * Vec3((x - camera.cx) / camera.fx, (y - camera.cy) / camera.fy, 1.0);
+      const Vec3 ray = ray_start + x * ray_step;
       if (!(ray.z() > 0)) continue;
-      const int xd = static_cast<int>(std::lround(camera.fx * ray.x() / ray.z() + camera.cx));
-      const int yd = static_cast<int>(std::lround(camera.fy * ray.y() / ray.z() + camera.cy));
-      if (xd < 0 || yd < 0 || xd >= depth.cols || yd >= depth.rows) continue;
-      const float z = depth.at<float>(yd, xd);
+      // The depth pixel it crosses (nearest; the comparisons also reject NaN).
+      const double inv_z = 1.0 / ray.z();
+      const double xd = camera.fx * ray.x() * inv_z + camera.cx;
+      const double yd = camera.fy * ray.y() * inv_z + camera.cy;
+      if (!(xd >= -0.5 && yd >= -0.5 && xd < max_x && yd < max_y)) continue;
+      const float z = depth.at<float>(static_cast<int>(yd + 0.5), static_cast<int>(xd + 0.5));
       // The depth pixel's point lies on the ray at (z / ray.z) ray; the colour camera's own ray
       // has z = 1, so that scale is its z there.
-      if (z > 0) z_out[x] = static_cast<float>(z / ray.z());
+      if (z > 0) z_out[x] = static_cast<float>(z * inv_z);
     }
   }
   return out;

@@ -112,9 +112,18 @@ int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::M
   const int m = options.margin;
   const int side = cell + 2 * m;
   const int n = side * side;
-  std::vector<float> ia(n), gxs(n), gys(n), used(n), descent, residual;
-  cv::Mat grey_b_float;  // the affine step samples b at a different offset per pixel
-  if (options.affine_iterations > 0) grey_b.convertTo(grey_b_float, CV_32F);
+  std::vector<float> ia(n), gxs(n), gys(n), used(n), descent, residual(n);
+  // b in float: the residuals of a window are sums of shifted blocks of it, vectorised.
+  cv::Mat grey_b_float;
+  grey_b.convertTo(grey_b_float, CV_32F);
+  const Eigen::Index step_b = static_cast<Eigen::Index>(grey_b_float.step[0] / sizeof(float));
+  using Block =
+      Eigen::Map<const Eigen::Array<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>, 0,
+                 Eigen::OuterStride<>>;
+  using Window = Eigen::Map<Eigen::Array<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>>;
+  using Row = Eigen::Map<const Eigen::ArrayXf>;
+  const Row ia_row(ia.data(), n), gx_row(gxs.data(), n), gy_row(gys.data(), n),
+      used_row(used.data(), n);
   const bool offset = options.brightness_offset;
   int refined = 0;
   for (int v = 0; v < target->rows; ++v) {
@@ -178,19 +187,16 @@ int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::M
         const float ax = xs - x0, ay = ys - y0;
         const float w00 = (1 - ax) * (1 - ay), w01 = ax * (1 - ay), w10 = (1 - ax) * ay,
                     w11 = ax * ay;
-        float b0 = 0, b1 = 0, b2 = 0;
-        k = 0;
-        for (int j = 0; j < side; ++j) {
-          const uint8_t* r0 = grey_b.ptr<uint8_t>(y0 + j) + x0;
-          const uint8_t* r1 = r0 + grey_b.step[0];
-          for (int i = 0; i < side; ++i, ++k) {
-            const float r = w00 * r0[i] + w01 * r0[i + 1] + w10 * r1[i] + w11 * r1[i + 1] - ia[k];
-            b0 += gxs[k] * r;
-            b1 += gys[k] * r;
-            b2 += used[k] * r;
-          }
-        }
-        if (!offset) b2 = 0;
+        const float* p = grey_b_float.ptr<float>(y0) + x0;
+        const Eigen::OuterStride<> stride(step_b);
+        Window(residual.data(), side, side) = w00 * Block(p, side, side, stride) +
+                                              w01 * Block(p + 1, side, side, stride) +
+                                              w10 * Block(p + step_b, side, side, stride) +
+                                              w11 * Block(p + step_b + 1, side, side, stride);
+        Eigen::Map<Eigen::ArrayXf> r(residual.data(), n);
+        r -= ia_row;
+        const float b0 = (gx_row * r).sum(), b1 = (gy_row * r).sum();
+        const float b2 = offset ? (used_row * r).sum() : 0.f;
         const Eigen::Vector3d step = Hinv * Eigen::Vector3d(b0, b1, b2);
         dx -= static_cast<float>(step(0));
         dy -= static_cast<float>(step(1));

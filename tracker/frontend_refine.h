@@ -30,7 +30,7 @@ struct RefineOptions {
   // Then affine Lucas-Kanade iterations (0 = none): displacement, its gradient across the
   // window and the offset, with the displacement at the window centre, where BA puts it (a
   // translation measured the forward flow of a road ahead short). 4 iterations take about
-  // 2.7x the time of the whole translation on a 512x384 street pair (docs/tracker.md).
+  // 3.4x the time of the whole translation on a 512x384 street pair (docs/tracker.md).
   int affine_iterations = 0;
 };
 
