@@ -62,8 +62,9 @@ void depthPrior(const cv::Mat& grid_depth, double a, double b, double z0, cv::Ma
         continue;
       }
       const double sigma_z = a + b * (z[u] - z0) * (z[u] - z0);
+      const double z2 = static_cast<double>(z[u]) * z[u];
       d[u] = static_cast<float>(1.0 / z[u]);
-      var[u] = static_cast<float>(sigma_z * sigma_z / std::pow(static_cast<double>(z[u]), 4));
+      var[u] = static_cast<float>(sigma_z * sigma_z / (z2 * z2));
     }
   }
 }
