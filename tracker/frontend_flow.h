@@ -109,7 +109,7 @@ cv::Mat flowTargetMap(const cv::Mat& flow);
 /// fraction of cv::GaussianBlur's cost for a wide sigma: the field is padded, averaged over k x k
 /// blocks (k up to 4, about sigma / 3), blurred there and upsampled bilinearly, with the blocks'
 /// and the interpolation's own spread taken off the sigma. Off cv::GaussianBlur by under 0.02 px
-/// for sigma 12 on a flow that jumps by 4 px from grid cell to grid cell, 10x faster
+/// for sigma 12 on a predicted flow with 4 px of noise per grid cell, about 10x faster
 /// (384 x 288, CV_32FC2). Any type cv::GaussianBlur takes; sigma_px > 0.
 cv::Mat wideGaussianBlur(const cv::Mat& field, double sigma_px);
 
