@@ -143,6 +143,35 @@ TEST(SensorDepthToGrid, ASlantedPlaneGivesEachCellItsCentresDepth) {
   }
 }
 
+TEST(DepthPrior, VarianceMatchesSampledInverseDepths) {
+  // Depths with the Kinect-like noise of the tracker's defaults, inverted: the sampled variance
+  // of 1/z matches the first-order sigma_z^2 / z^4 where sigma_z / z is small.
+  const double a = 0.0012, b = 0.0019, z0 = 0.4;
+  cv::Mat z(1, 4, CV_32FC1);
+  z.at<float>(0) = 0.8f;
+  z.at<float>(1) = 2.5f;
+  z.at<float>(2) = 4.0f;
+  z.at<float>(3) = 0.0f;  // no depth
+  cv::Mat inv_depth, inv_depth_var;
+  depthPrior(z, a, b, z0, &inv_depth, &inv_depth_var);
+  EXPECT_TRUE(std::isnan(inv_depth.at<float>(3)));
+  EXPECT_EQ(inv_depth_var.at<float>(3), 0.0f);
+  cv::RNG rng(7);
+  for (int i = 0; i < 3; ++i) {
+    const double zi = z.at<float>(i), sigma_z = a + b * (zi - z0) * (zi - z0);
+    EXPECT_NEAR(inv_depth.at<float>(i), 1.0 / zi, 1e-6);
+    double sum = 0, sum2 = 0;
+    const int n = 200000;
+    for (int k = 0; k < n; ++k) {
+      const double d = 1.0 / (zi + rng.gaussian(sigma_z));
+      sum += d;
+      sum2 += d * d;
+    }
+    const double sampled = sum2 / n - (sum / n) * (sum / n);
+    EXPECT_NEAR(inv_depth_var.at<float>(i) / sampled, 1.0, 0.03) << "z = " << zi;
+  }
+}
+
 TEST(Keyframes, SelectionTriggersAtTheThreshold) {
   const cv::Size grid(64, 48);
   const cv::Mat weight(grid, CV_32FC2, cv::Scalar(1, 1));
