@@ -113,8 +113,9 @@ cv::Mat wideGaussianBlur(const cv::Mat& field, double sigma_px) {
   cv::copyMakeBorder(field, padded, pad, pad + (k - field.rows % k) % k, pad,
                      pad + (k - field.cols % k) % k, cv::BORDER_REFLECT_101);
   cv::resize(padded, blocks, cv::Size(padded.cols / k, padded.rows / k), 0, 0, cv::INTER_AREA);
-  // The block mean adds a variance of k^2 / 12 (working px^2), the bilinear upsampling k^2 / 6.
-  const double block_sigma = std::sqrt(std::max(sigma_px * sigma_px - 0.25 * k * k, 0.25)) / k;
+  // The block mean adds a variance of k^2 / 12 (working px^2), the bilinear upsampling k^2 / 6;
+  // k <= sigma / 3 leaves plenty.
+  const double block_sigma = std::sqrt(sigma_px * sigma_px - 0.25 * k * k) / k;
   cv::GaussianBlur(blocks, blocks, cv::Size(0, 0), block_sigma);
   cv::resize(blocks, up, padded.size(), 0, 0, cv::INTER_LINEAR);
   return up(cv::Rect(pad, pad, field.cols, field.rows)).clone();

@@ -25,12 +25,12 @@ namespace {
 // Affine Lucas-Kanade on one cell from the translation (dx, dy) found: pixel x of a's window
 // (offset q from the window centre) is matched at x + d + G q in b, so d is the flow at the
 // centre itself, where BA puts it. Leaves (dx, dy) unchanged when the window leaves b or the
-// system is singular. grey_b_float: image b as CV_32FC1; descent, residual: scratch of
-// 7 x side^2 and side^2.
+// system is singular. grey_b_float: image b as CV_32FC1; descent: scratch of 7 x side^2; res:
+// side^2 floats of scratch.
 void refineAffine(const cv::Mat& grey_b_float, int side, int xa, int ya, const float* ia,
                   const float* gxs, const float* gys, const float* used, bool offset,
-                  const RefineOptions& options, std::vector<float>* descent,
-                  std::vector<float>* residual, float* dx, float* dy) {
+                  const RefineOptions& options, std::vector<float>* descent, float* res, float* dx,
+                  float* dy) {
   using Mat7f = Eigen::Matrix<float, 7, 7>;
   const int n = side * side;
   const float centre = 0.5f * (side - 1);
@@ -62,8 +62,6 @@ void refineAffine(const cv::Mat& grey_b_float, int side, int xa, int ya, const f
   const size_t step_b = grey_b_float.step[0] / sizeof(float);
   const float* b = grey_b_float.ptr<float>();
   float d[2] = {*dx, *dy}, G[4] = {0, 0, 0, 0};
-  residual->resize(n);
-  float* res = residual->data();
   for (int it = 0; it < options.affine_iterations; ++it) {
     for (int j = 0, k = 0; j < side; ++j) {
       const float qy = j - centre;
@@ -121,9 +119,12 @@ int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::M
       Eigen::Map<const Eigen::Array<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>, 0,
                  Eigen::OuterStride<>>;
   using Window = Eigen::Map<Eigen::Array<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>>;
+  using ConstWindow =
+      Eigen::Map<const Eigen::Array<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>>;
   using Row = Eigen::Map<const Eigen::ArrayXf>;
-  const Row ia_row(ia.data(), n), gx_row(gxs.data(), n), gy_row(gys.data(), n),
-      used_row(used.data(), n);
+  const ConstWindow ia_window(ia.data(), side, side);
+  const Row gx_row(gxs.data(), n), gy_row(gys.data(), n), used_row(used.data(), n),
+      r(residual.data(), n);
   const bool offset = options.brightness_offset;
   int refined = 0;
   for (int v = 0; v < target->rows; ++v) {
@@ -189,12 +190,10 @@ int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::M
                     w11 = ax * ay;
         const float* p = grey_b_float.ptr<float>(y0) + x0;
         const Eigen::OuterStride<> stride(step_b);
-        Window(residual.data(), side, side) = w00 * Block(p, side, side, stride) +
-                                              w01 * Block(p + 1, side, side, stride) +
-                                              w10 * Block(p + step_b, side, side, stride) +
-                                              w11 * Block(p + step_b + 1, side, side, stride);
-        Eigen::Map<Eigen::ArrayXf> r(residual.data(), n);
-        r -= ia_row;
+        Window(residual.data(), side, side) =
+            w00 * Block(p, side, side, stride) + w01 * Block(p + 1, side, side, stride) +
+            w10 * Block(p + step_b, side, side, stride) +
+            w11 * Block(p + step_b + 1, side, side, stride) - ia_window;
         const float b0 = (gx_row * r).sum(), b1 = (gy_row * r).sum();
         const float b2 = offset ? (used_row * r).sum() : 0.f;
         const Eigen::Vector3d step = Hinv * Eigen::Vector3d(b0, b1, b2);
@@ -204,7 +203,7 @@ int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::M
       }
       if (ok && options.affine_iterations > 0) {
         refineAffine(grey_b_float, side, xa, ya, ia.data(), gxs.data(), gys.data(), used.data(),
-                     offset, options, &descent, &residual, &dx, &dy);
+                     offset, options, &descent, residual.data(), &dx, &dy);
       }
       const float mx = dx - dx0, my = dy - dy0;
       if (!ok || !std::isfinite(dx) || !std::isfinite(dy) || mx * mx + my * my > max_shift2) {
