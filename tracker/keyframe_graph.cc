@@ -2,8 +2,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <stdexcept>
 #include <string>
+#include <utility>
 
 namespace radslam {
 
@@ -173,13 +175,20 @@ std::vector<int> KeyframeGraph::edgePartners(int id, const CameraModel& grid, do
   return partners;
 }
 
-int KeyframeGraph::loopPartner(int id, const CameraModel& grid, double min_overlap,
-                               double min_depth_ratio) const {
-  for (int old : kept_images_) {  // oldest first
+std::vector<int> KeyframeGraph::loopPartners(int id, const CameraModel& grid, double min_overlap,
+                                             int max_partners, double min_depth_ratio) const {
+  std::vector<std::pair<double, int>> candidates;  // (overlap, id), oldest first
+  for (int old : kept_images_) {
     if (old == id || keyframes_[old].grey.empty()) continue;
-    if (overlap(id, old, grid, min_depth_ratio) > min_overlap) return old;
+    const double o = overlap(id, old, grid, min_depth_ratio);
+    if (o > min_overlap) candidates.emplace_back(o, old);
   }
-  return -1;
+  if (candidates.empty() || max_partners < 1) return {};
+  std::sort(candidates.begin() + 1, candidates.end(), std::greater<>());
+  std::vector<int> partners;
+  for (size_t n = 0; n < candidates.size() && static_cast<int>(n) < max_partners; ++n)
+    partners.push_back(candidates[n].second);
+  return partners;
 }
 
 void KeyframeGraph::anchor(int id) {

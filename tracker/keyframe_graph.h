@@ -153,10 +153,12 @@ class KeyframeGraph {
   /// max_partners in all.
   std::vector<int> edgePartners(int id, const CameraModel& grid, double min_overlap,
                                 int max_partners, double min_depth_ratio) const;
-  /// The oldest keyframe outside the window that still has its image and that keyframe `id`
-  /// overlaps by more than min_overlap (by the current estimate), or -1: a loop partner.
-  int loopPartner(int id, const CameraModel& grid, double min_overlap,
-                  double min_depth_ratio) const;
+  /// Loop partners of keyframe `id`: keyframes outside the window that still have their image
+  /// and that `id` overlaps by more than min_overlap (by the current estimate). The oldest
+  /// first (it has drifted least from the gauge), then the others by decreasing overlap; at
+  /// most max_partners.
+  std::vector<int> loopPartners(int id, const CameraModel& grid, double min_overlap,
+                                int max_partners, double min_depth_ratio) const;
 
   /// The window as a dense BA problem: keyframes oldest first (so index 0 is the gauge), then
   /// the anchors of loop edges with fixed poses and their last inverse depths and marginal

@@ -745,8 +745,11 @@ void Tracker::Impl::makeKeyframe(const Frame& frame, const PreparedImage& image,
   const bool can_ba = graph.windowIds().size() >= 2 || mode == TrackerMode::kStereo;
   if (!partners.empty() && p.loop_min_overlap <= 1) {
     const auto t_loop = Clock::now();
-    const int anchor = graph.loopPartner(id, g.grid, p.loop_min_overlap, p.min_depth_ratio);
-    if (anchor >= 0 && measureLoop(id, anchor)) ++stats.loop_edges;
+    const int max_loops = mode == TrackerMode::kMono ? p.loop_max_edges : p.metric_loop_max_edges;
+    for (int anchor :
+         graph.loopPartners(id, g.grid, p.loop_min_overlap, max_loops, p.min_depth_ratio)) {
+      if (measureLoop(id, anchor)) ++stats.loop_edges;
+    }
     stats.flow_ms += msSince(t_loop);
   }
   for (int round = 0; round < p.flow_ba_rounds; ++round) {

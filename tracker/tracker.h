@@ -7,7 +7,7 @@
 /// frame's pose and covariance. When the parallax to the last keyframe exceeds
 /// keyframe_flow_px, the rotation alone exceeds keyframe_rotation_px (BA grid px) or too few
 /// cells are tracked (isNewKeyframe), the frame becomes a keyframe: edges to its predecessor and
-/// to overlapping window keyframes (and a loop edge to an older overlapping keyframe outside the
+/// to overlapping window keyframes (and loop edges to older overlapping keyframes outside the
 /// window), then flow_ba_rounds alternations of (flow warm-started from BA's prediction, BA),
 /// then exact marginals; new and changed keyframes are returned.
 ///
@@ -113,12 +113,17 @@ struct TrackerParams {
   int max_edge_partners = 3;      // earlier keyframes a new keyframe gets edges with
   double min_edge_overlap = 0.5;  // fraction of pixels predicted inside the other image
   int flow_ba_rounds = 2;         // (flow, BA) alternations per new keyframe
-  // Loop edges: a new keyframe also gets an edge pair with the oldest keyframe outside the
-  // window that it overlaps by more than loop_min_overlap (fixed pose, depths held by their
-  // marginals), when at least loop_min_valid of the pixels are tracked both ways. Bounds drift
-  // when the camera returns to a view it has seen.
-  double loop_min_overlap = 0.7;   // fraction of grid pixels; > 1 disables loop edges
-  double loop_min_valid = 0.5;     // fraction of grid pixels
+  // Loop edges: a new keyframe also gets an edge pair with keyframes outside the window that
+  // it overlaps by more than loop_min_overlap (fixed pose, depths held by their marginals),
+  // when at least loop_min_valid of the pixels are tracked both ways. Bounds drift when the
+  // camera returns to a view it has seen.
+  double loop_min_overlap = 0.7;  // fraction of grid pixels; > 1 disables loop edges
+  double loop_min_valid = 0.5;    // fraction of grid pixels
+  // Loop partners tried per keyframe (KeyframeGraph::loopPartners: the oldest, then the most
+  // overlapping): monocular / RGB-D and stereo. A second one took fr1/rpy monocular from 1.12
+  // to 1.04 deg; RGB-D, which drifts less, did not gain (docs/tracker.md, step 6).
+  int loop_max_edges = 2;
+  int metric_loop_max_edges = 1;
   int loop_max_kept_images = 200;  // keyframes outside the window that keep their grey image
   // Edges between a keyframe leaving the window and the window stay, with the departed
   // keyframe fixed (KeyframeGraph): a longer memory of scale and rotation at the cost of BA
@@ -167,7 +172,7 @@ struct TrackerParams {
   double mono_init_min_parallax_deg = 1.0;
   // Monocular weak inverse-depth prior on each pixel, relative to its mean (init_inv_depth):
   // it keeps pixels without parallax determined and flattens the scene.
-  double mono_prior_rel_sigma = 1.7;
+  double mono_prior_rel_sigma = 2.0;
   // Monocular scale: each keyframe's mean inverse depth is held as hard as a per-pixel prior
   // of this relative sigma would hold it (the pixels' own prior holds part, a level prior the
   // rest: DenseBaKeyframe::prior_level_var; none when not below mono_prior_rel_sigma).

@@ -92,6 +92,8 @@ void validateTrackerParams(const TrackerParams& p) {
   check(p.flow_ba_rounds >= 1, "flow_ba_rounds must be >= 1");
   check(p.loop_min_overlap >= 0, "loop_min_overlap must be >= 0 (> 1 disables loop edges)");
   check(p.loop_min_valid >= 0 && p.loop_min_valid <= 1, "loop_min_valid in [0, 1]");
+  check(p.loop_max_edges >= 1 && p.metric_loop_max_edges >= 1,
+        "loop_max_edges and metric_loop_max_edges must be >= 1");
   check(p.loop_max_kept_images >= 0, "loop_max_kept_images must be >= 0");
   check(p.ba_iterations >= 1 && p.final_ba_iterations >= 0,
         "ba_iterations >= 1, final_ba_iterations >= 0");
@@ -198,6 +200,8 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("flow_ba_rounds", &p.flow_ba_rounds);
   r.get("loop_min_overlap", &p.loop_min_overlap);
   r.get("loop_min_valid", &p.loop_min_valid);
+  r.get("loop_max_edges", &p.loop_max_edges);
+  r.get("metric_loop_max_edges", &p.metric_loop_max_edges);
   r.get("loop_max_kept_images", &p.loop_max_kept_images);
   r.get("keep_departed_edges", &p.keep_departed_edges);
   r.get("ba_iterations", &p.ba_iterations);

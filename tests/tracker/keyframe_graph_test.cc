@@ -37,6 +37,28 @@ GraphEdge edge(int i, int j, int anchor = -1) {
                    anchor};
 }
 
+TEST(KeyframeGraph, LoopPartnersAreTheOldestThenTheMostOverlapping) {
+  const CameraModel grid = gridCamera();
+  KeyframeGraph graph(2, 4);
+  for (double x : {0.5, 0.0, 1.0, 3.0, 4.0, 0.1}) {
+    graph.add(keyframeAt(x));
+    graph.slideWindow();
+  }
+  // Keyframe 5 (x = 0.1) overlaps 1 (x = 0) most, then 0 (x = 0.5), then 2 (x = 1); not 3.
+  EXPECT_EQ(graph.windowIds(), (std::vector<int>{4, 5}));
+  const double overlap0 = graph.overlap(5, 0, grid, 0.2);
+  const double overlap1 = graph.overlap(5, 1, grid, 0.2);
+  const double overlap2 = graph.overlap(5, 2, grid, 0.2);
+  EXPECT_GT(overlap1, overlap0);
+  EXPECT_GT(overlap0, overlap2);
+  EXPECT_GT(overlap2, 0.3);
+  EXPECT_LT(graph.overlap(5, 3, grid, 0.2), 0.3);
+  EXPECT_EQ(graph.loopPartners(5, grid, 0.3, 3, 0.2), (std::vector<int>{0, 1, 2}));
+  EXPECT_EQ(graph.loopPartners(5, grid, 0.3, 2, 0.2), (std::vector<int>{0, 1}));
+  EXPECT_EQ(graph.loopPartners(5, grid, 0.5 * (overlap0 + overlap1), 3, 0.2), std::vector<int>{1});
+  EXPECT_TRUE(graph.loopPartners(5, grid, 0.99, 3, 0.2).empty());
+}
+
 TEST(KeyframeGraph, LoopEdgesAnchorOldKeyframesAsFixedPoses) {
   const CameraModel grid = gridCamera();
   KeyframeGraph graph(2, 2);
@@ -60,8 +82,8 @@ TEST(KeyframeGraph, LoopEdgesAnchorOldKeyframesAsFixedPoses) {
   // 4 overlaps by more than the threshold is its loop partner.
   const double overlap1 = graph.overlap(4, 1, grid, 0.2);
   EXPECT_GT(overlap1, 0.3);
-  EXPECT_EQ(graph.loopPartner(4, grid, 0.3, 0.2), 1);
-  EXPECT_EQ(graph.loopPartner(4, grid, 0.99, 0.2), -1);
+  EXPECT_EQ(graph.loopPartners(4, grid, 0.3, 1, 0.2), std::vector<int>{1});
+  EXPECT_TRUE(graph.loopPartners(4, grid, 0.99, 1, 0.2).empty());
 
   graph.setEdge(edge(3, 4));
   graph.setEdge(edge(4, 3));
