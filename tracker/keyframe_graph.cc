@@ -182,6 +182,7 @@ std::vector<int> KeyframeGraph::loopPartners(int id, const CameraModel& grid, do
     if (old == id || keyframes_[old].grey.empty()) continue;
     const double o = overlap(id, old, grid, min_depth_ratio);
     if (o > min_overlap) candidates.emplace_back(o, old);
+    if (max_partners == 1 && !candidates.empty()) break;  // the oldest is the one wanted
   }
   if (candidates.empty() || max_partners < 1) return {};
   std::sort(candidates.begin() + 1, candidates.end(), std::greater<>());
