@@ -86,6 +86,10 @@ void validateDenseBaProblem(const DenseBaProblem& problem) {
       checkImage(kf.prior_inv_depth, CV_32FC1, cam, name + " prior_inv_depth");
       checkImage(kf.prior_inv_depth_var, CV_32FC1, cam, name + " prior_inv_depth_var");
     }
+    if (!kf.measured_inv_depth.empty() || !kf.measured_inv_depth_var.empty()) {
+      checkImage(kf.measured_inv_depth, CV_32FC1, cam, name + " measured_inv_depth");
+      checkImage(kf.measured_inv_depth_var, CV_32FC1, cam, name + " measured_inv_depth_var");
+    }
     if (!(std::isfinite(kf.prior_level_var) && kf.prior_level_var >= 0)) {
       throw std::invalid_argument("DenseBA: " + name + " prior_level_var must be finite and >= 0");
     }
@@ -132,6 +136,56 @@ bool denseBaResidual(const CameraModel& camera, const SE3& T_world_i, const SE3&
   if (H_i) *H_i = -J_xi * T_j_i.adjoint();
   if (H_j) *H_j = J_xi;
   if (H_d) *H_d = -J_d;
+  return true;
+}
+
+bool denseBaDepthResidual(const CameraModel& camera, const SE3& T_world_i, const SE3& T_world_j,
+                          double u, double v, double d, const cv::Mat& measured_inv_depth,
+                          const cv::Mat& measured_inv_depth_var, double min_depth_ratio,
+                          double max_jump, double* r, double* weight,
+                          Eigen::Matrix<double, 1, 6>* H_i, Eigen::Matrix<double, 1, 6>* H_j,
+                          double* H_d) {
+  checkImage(measured_inv_depth, CV_32FC1, camera, "denseBaDepthResidual measured_inv_depth");
+  checkImage(measured_inv_depth_var, CV_32FC1, camera,
+             "denseBaDepthResidual measured_inv_depth_var");
+  const SE3 T_j_i = T_world_j.inverse() * T_world_i;
+  const Mat3 R = T_j_i.rotation();
+  const Vec3 t = T_j_i.translation();
+  Mat26 J_xi;
+  Eigen::Vector2d J_d;
+  double pu, pv;
+  const double x = (u - camera.cx) / camera.fx, y = (v - camera.cy) / camera.fy;
+  if (!dense_ba::reproject<double>(R, t, pinhole(camera), x, y, d, min_depth_ratio, &pu, &pv, &J_xi,
+                                   &J_d)) {
+    return false;
+  }
+  std::vector<double> mean(camera.width * camera.height), var(mean.size());
+  for (size_t p = 0; p < mean.size(); ++p) {
+    const double m = measured_inv_depth.at<float>(static_cast<int>(p));
+    const double s2 = measured_inv_depth_var.at<float>(static_cast<int>(p));
+    const bool valid = std::isfinite(m) && s2 > 0 && std::isfinite(s2);
+    mean[p] = valid ? m : 0.0;
+    var[p] = valid ? s2 : 0.0;
+  }
+  dense_ba::DepthSample sample;
+  if (!dense_ba::sampleDepth(mean.data(), var.data(), camera.width, camera.height, pu, pv, max_jump,
+                             &sample)) {
+    return false;
+  }
+  const double Z = R.row(2).dot(Vec3(x, y, 1)) + t(2) * d;
+  const double iz = 1 / Z, s = d * iz;
+  *r = sample.value - s;
+  *weight = 1 / sample.var;
+  Vec6 jz;
+  double jd;
+  const Eigen::Matrix<double, 1, 6> j0 = J_xi.row(0), j1 = J_xi.row(1);
+  dense_ba::depthResidualJacobians(sample, s, (pu - camera.cx) / camera.fx,
+                                   (pv - camera.cy) / camera.fy, iz, t(2), j0, j1, J_d(0), J_d(1),
+                                   &jz, &jd);
+  // r = measured - prediction: dr = -J; xi = Ad(T_j_i) delta_i - delta_j.
+  if (H_i) *H_i = -jz.transpose() * T_j_i.adjoint();
+  if (H_j) *H_j = jz.transpose();
+  if (H_d) *H_d = -jd;
   return true;
 }
 

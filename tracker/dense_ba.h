@@ -27,7 +27,12 @@
 //    whitened by weight(p) = (1/sigma_u^2, 1/sigma_v^2) and passed through a Huber kernel on
 //    s = sqrt(r^T W r). Cost = sum of rho(s^2) (rho(s^2) = s^2 for inliers, no factor 1/2)
 //    + sum over priors of (d - mu)^2 / var
-//    + per keyframe with a level prior, (mean over its prior pixels of (mu - d))^2 / level_var.
+//    + per keyframe with a level prior, (mean over its prior pixels of (mu - d))^2 / level_var
+//    + per edge (i, j) into a keyframe j with a measured inverse depth m_j, per point used above,
+//      rho(r_z^2 / var) with r_z = m_j(pixel) - d_j: the measurement interpolated where the point
+//      lands against the point's own inverse depth d_j = d / z_j-ratio in camera j (RGB-D
+//      odometry's geometric term), var the largest of the four samples' variances
+//      (dense_ba::sampleDepth; points landing across a depth edge have none).
 //  - Points whose depth ratio z_j / z_i falls below min_depth_ratio are dropped for that
 //    linearisation (see dense_ba::reproject in tracker/dense_ba_kernel.h).
 //  - Normal equations [C E; E^T P][dxi; dd] = [v; w] with P per keyframe diagonal (plus a rank-one
@@ -66,6 +71,12 @@ struct DenseBaKeyframe {
   /// than a weak per-pixel prior does without flattening the shape (monocular: the scale,
   /// tracker/tracker.h mono_level_rel_sigma).
   double prior_level_var = 0;
+  /// Optional measured inverse depth of this keyframe's view (RGB-D: the sensor, 1/m) and its
+  /// variance (1/m^2), CV_32FC1, grid size, both empty for none; pixels without a measurement
+  /// as for the prior. Every edge into this keyframe then also has a depth residual per point
+  /// (see the cost above): the flow fixes where the points land, this how far they are.
+  cv::Mat measured_inv_depth;
+  cv::Mat measured_inv_depth_var;
 };
 
 /// Correspondences from keyframe i to keyframe j (or to i's own rigidly attached second camera).
@@ -124,6 +135,9 @@ struct DenseBaOptions {
   /// Points with z_j / z_i below this are dropped (DROID-SLAM's MIN_DEPTH = 0.2 on the same
   /// homogeneous z).
   double min_depth_ratio = 0.2;
+  /// Depth residuals skip points whose four neighbouring measurements spread by more than this
+  /// fraction of the largest (a depth edge between them, or a slant too steep for the grid).
+  double depth_residual_max_jump = 0.03;
   /// Inverse depths are clamped to this range at the start and after every step (1/m; a
   /// non-finite start value becomes min_inv_depth).
   double min_inv_depth = 1e-3;
@@ -202,6 +216,18 @@ bool denseBaResidual(const CameraModel& camera, const SE3& T_world_i, const SE3&
                      double u, double v, double d, const Eigen::Vector2d& target,
                      double min_depth_ratio, Eigen::Vector2d* r, Mat26* H_i = nullptr,
                      Mat26* H_j = nullptr, Eigen::Vector2d* H_d = nullptr);
+
+/// The depth residual of one pixel of edge (i, j) into a keyframe with a measured inverse depth
+/// (CV_32FC1 mean and variance, grid size), with its whitening weight 1 / var and Jacobians of
+/// r wrt right perturbations of T_world_i, T_world_j and wrt d. False when the point is dropped
+/// or lands where the measurement gives none (dense_ba::sampleDepth). For the reference and the
+/// tests, as denseBaResidual.
+bool denseBaDepthResidual(const CameraModel& camera, const SE3& T_world_i, const SE3& T_world_j,
+                          double u, double v, double d, const cv::Mat& measured_inv_depth,
+                          const cv::Mat& measured_inv_depth_var, double min_depth_ratio,
+                          double max_jump, double* r, double* weight,
+                          Eigen::Matrix<double, 1, 6>* H_i = nullptr,
+                          Eigen::Matrix<double, 1, 6>* H_j = nullptr, double* H_d = nullptr);
 
 /// The correspondence field predicted by the current estimate: for each grid pixel of keyframe
 /// i, its projection into camera T_world_j (CV_32FC2; NaN where dropped). The front end uses

@@ -2,6 +2,7 @@
 // with its analytic Jacobians and the Huber kernel. Header-only so the inner loops inline them.
 #pragma once
 
+#include <algorithm>
 #include <cmath>
 
 #include <Eigen/Core>
@@ -74,6 +75,52 @@ inline bool reproject(const Eigen::Matrix<S, 3, 3>& R, const Eigen::Matrix<S, 3,
     (*J_d)(1) = cam.fy * iz * (t(1) - yn * t(2));
   }
   return true;
+}
+
+/// A measured inverse-depth map (row-major, width x height, pixel centres at integers; variance
+/// 0 where nothing was measured) interpolated bilinearly at (pu, pv): the value, its gradient
+/// (per pixel) and the largest variance of the four samples (a weight that does not move with
+/// the point inside a cell). False outside the grid's interior (also for NaN), where a sample is
+/// missing, and where the four straddle a depth edge: their spread exceeds max_jump times the
+/// largest (a surface seen through a cell boundary, whose interpolation would be neither).
+struct DepthSample {
+  double value = 0, du = 0, dv = 0, var = 0;
+};
+
+inline bool sampleDepth(const double* mean, const double* var, int width, int height, double pu,
+                        double pv, double max_jump, DepthSample* out) {
+  const double fu = std::floor(pu), fv = std::floor(pv);
+  if (!(fu >= 0 && fv >= 0 && fu + 1 < width && fv + 1 < height)) return false;
+  const int p = static_cast<int>(fv) * width + static_cast<int>(fu);
+  const double v00 = var[p], v01 = var[p + 1], v10 = var[p + width], v11 = var[p + width + 1];
+  if (!(v00 > 0 && v01 > 0 && v10 > 0 && v11 > 0)) return false;
+  const double m00 = mean[p], m01 = mean[p + 1], m10 = mean[p + width], m11 = mean[p + width + 1];
+  const double lo = std::min(std::min(m00, m01), std::min(m10, m11));
+  const double hi = std::max(std::max(m00, m01), std::max(m10, m11));
+  if (hi - lo > max_jump * hi) return false;
+  const double a = pu - fu, b = pv - fv;
+  out->value = (1 - b) * ((1 - a) * m00 + a * m01) + b * ((1 - a) * m10 + a * m11);
+  out->du = (1 - b) * (m01 - m00) + b * (m11 - m10);
+  out->dv = (1 - a) * (m10 - m00) + a * (m11 - m01);
+  out->var = std::max(std::max(v00, v01), std::max(v10, v11));
+  return true;
+}
+
+/// The depth residual of a point reprojected by dense_ba::reproject (its normalised coordinates
+/// xn, yn in j, s = d / Z its inverse depth in j): r = measured(pixel) - s. With the pixel
+/// Jacobian rows j0, j1 (wrt xi, left perturbation of T_j_i) and Jd (wrt d) of that call, the
+/// prediction's Jacobians, in the sign convention of the reprojection's (J = -dr/dx):
+///   jz = ds/dxi - grad . dpixel/dxi, ds/dxi = -s [0, 0, s, yn, -xn, 0] (dZ/dxi = [0 0 d Y -X 0]);
+///   jd = ds/dd - grad . dpixel/dd,   ds/dd = (1 - s t_z) / Z.
+template <typename Row>
+inline void depthResidualJacobians(const DepthSample& m, double s, double xn, double yn, double iz,
+                                   double tz, const Row& j0, const Row& j1, double jd0, double jd1,
+                                   Eigen::Matrix<double, 6, 1>* jz, double* jd) {
+  for (int a = 0; a < 6; ++a) (*jz)(a) = -m.du * j0[a] - m.dv * j1[a];
+  (*jz)(2) -= s * s;
+  (*jz)(3) -= s * yn;
+  (*jz)(4) += s * xn;
+  *jd = iz * (1 - s * tz) - m.du * jd0 - m.dv * jd1;
 }
 
 /// Huber kernel on the whitened residual norm s = sqrt(r^T W r) with threshold k (k <= 0:

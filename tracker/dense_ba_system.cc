@@ -46,6 +46,8 @@ void DenseBundleAdjuster::System::setup(const DenseBaProblem& problem,
   prior_omega_.assign(K, Eigen::VectorXd());
   level_alpha_.assign(K, 0.0);
   level_u_.assign(K, Eigen::VectorXd());
+  measured_.assign(K, Eigen::VectorXd());
+  measured_var_.assign(K, Eigen::VectorXd());
   var_.assign(K, -1);
   num_vars_ = 0;
   for (int k = 0; k < K; ++k) {
@@ -71,6 +73,15 @@ void DenseBundleAdjuster::System::setup(const DenseBaProblem& problem,
       if (kf.prior_level_var > 0 && with_prior > 0) {
         level_alpha_[k] = 1.0 / kf.prior_level_var;
         level_u_[k] = (prior_omega_[k].array() > 0).cast<double>() / with_prior;
+      }
+    }
+    if (!kf.measured_inv_depth.empty()) {
+      measured_[k] = toVector(kf.measured_inv_depth);
+      measured_var_[k] = toVector(kf.measured_inv_depth_var);
+      for (int p = 0; p < npix_; ++p) {
+        const double var = measured_var_[k](p);
+        const bool valid = std::isfinite(measured_[k](p)) && var > 0 && var < kInf;
+        if (!valid) measured_[k](p) = measured_var_[k](p) = 0;
       }
     }
     bool fixed = kf.fixed_pose;
@@ -165,6 +176,9 @@ double DenseBundleAdjuster::System::keyframePass(int kf, const std::vector<SE3>&
     x.A.setZero();
     x.g.setZero();
     x.B = kLinearize && e.j >= 0 ? lin->B[kf].data() + 6 * e.slot : nullptr;
+    const bool measured = e.j >= 0 && measured_[e.j].size() > 0;
+    x.measured = measured ? measured_[e.j].data() : nullptr;
+    x.measured_var = measured ? measured_var_[e.j].data() : nullptr;
   }
   // Rows outer, edges inner: the row's columns of B_kf (W x 6m doubles) stay in cache while
   // every edge writes its slot.
@@ -290,9 +304,46 @@ void DenseBundleAdjuster::System::rowPass(const Edge& e, EdgeContext* x, int v, 
           col[3] = b3(q);
           col[4] = b4(q);
           col[5] = b5(q);
+          if (x->measured) {
+            const double j0q[6] = {j0[0](q), 0.0, j0[2](q), j0[3](q), j0[4](q), j0[5](q)};
+            const double j1q[6] = {0.0, j1[1](q), j1[2](q), j1[3](q), j1[4](q), j1[5](q)};
+            depthTerm(x, iz(q), xn(q), yn(q), d(q), j0q, j1q, Jd0(q), Jd1(q), u0 + q, col, cost);
+          }
         }
       }
+    } else if (x->measured) {
+      for (int q = 0; q < std::min(kBlock, width_ - u0); ++q) {
+        depthTerm(x, iz(q), xn(q), yn(q), d(q), nullptr, nullptr, 0, 0, u0 + q, nullptr, cost);
+      }
     }
+  }
+}
+
+void DenseBundleAdjuster::System::depthTerm(EdgeContext* x, double iz, double xn, double yn,
+                                            double d, const double* j0, const double* j1,
+                                            double jd0, double jd1, int u, double* col,
+                                            double* cost) {
+  if (iz == 0) return;  // no reprojection: occluded, masked or behind the camera
+  dense_ba::DepthSample m;
+  if (!dense_ba::sampleDepth(x->measured, x->measured_var, width_, height_, cam_.fx * xn + cam_.cx,
+                             cam_.fy * yn + cam_.cy, options_.depth_residual_max_jump, &m)) {
+    return;
+  }
+  const double s = d * iz, r = m.value - s;
+  double irls;
+  *cost +=
+      dense_ba::robustCost(options_.robust_kernel, r * r / m.var, options_.robust_scale, &irls);
+  if (!j0) return;
+  Vec6 jz;
+  double jd;
+  dense_ba::depthResidualJacobians(m, s, xn, yn, iz, x->t(2), j0, j1, jd0, jd1, &jz, &jd);
+  const double w = irls / m.var;
+  x->A.noalias() += (w * jz) * jz.transpose();
+  x->g += (w * r) * jz;
+  P_row_[u] += w * jd * jd;
+  w_row_[u] += w * jd * r;
+  if (col) {
+    for (int a = 0; a < 6; ++a) col[a] += w * jz(a) * jd;
   }
 }
 

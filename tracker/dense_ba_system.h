@@ -109,6 +109,9 @@ class DenseBundleAdjuster::System {
     Mat6 A;  // lower triangle accumulated
     Vec6 g;
     double* B;  // slot of the edge in B_i, null for stereo edges or cost-only passes
+    // The target keyframe's measured inverse depth and variance (0: none), null for none.
+    const double* measured = nullptr;
+    const double* measured_var = nullptr;
   };
   /// Cost (and with kLinearize the linearisation) of all edges out of keyframe kf.
   template <bool kLinearize>
@@ -118,6 +121,11 @@ class DenseBundleAdjuster::System {
   template <bool kLinearize>
   void rowPass(const Edge& e, EdgeContext* x, int v, Linearization* lin, double* cost, double* err,
                int* n);
+  // The depth residual of one point of rowPass (iz = 0: not reprojected). With the pixel
+  // Jacobian rows j0, j1 (null: cost only) accumulates into x, the row's P and w and the point's
+  // column col of B_i.
+  void depthTerm(EdgeContext* x, double iz, double xn, double yn, double d, const double* j0,
+                 const double* j1, double jd0, double jd1, int u, double* col, double* cost);
   double priorPass(int k, const Eigen::VectorXd& d, Linearization* lin) const;
   Mat6 scaleGaugeRotation(const std::vector<SE3>& poses) const;
   void buildPoseSystem(Linearization* lin) const;
@@ -147,6 +155,8 @@ class DenseBundleAdjuster::System {
   std::vector<Eigen::VectorXd> prior_mean_, prior_omega_;
   std::vector<double> level_alpha_;
   std::vector<Eigen::VectorXd> level_u_;
+  // Measured inverse depth and its variance per keyframe (0 where none; empty for none).
+  std::vector<Eigen::VectorXd> measured_, measured_var_;
   /// Sherman-Morrison factor of keyframe k's depth block: P^-1 = D^-1 - beta q q^T, q = D^-1 u,
   /// beta = alpha / (1 + alpha u^T D^-1 u); 0 without a level prior.
   double levelBeta(const Linearization& lin, int k) const;

@@ -68,7 +68,7 @@ struct KeyframeImageRef {
 template <class K>
 auto keyframeImages(K& k) {
   using Ref = KeyframeImageRef<std::conditional_t<std::is_const_v<K>, const cv::Mat, cv::Mat>>;
-  return std::array<Ref, 16>{{
+  return std::array<Ref, 18>{{
       {"colour", &k.color, false, {CV_8UC1, CV_8UC3}},
       {"grey", &k.grey, false, {CV_8UC1, CV_8UC1}},
       {"structure tensor", &k.structure, true, {CV_32FC3, CV_32FC3}},
@@ -83,6 +83,8 @@ auto keyframeImages(K& k) {
       {"inverse-depth prior variance", &k.ba.prior_inv_depth_var, true, {CV_32FC1, CV_32FC1}},
       {"sensor inverse depth", &k.sensor_inv_depth, true, {CV_32FC1, CV_32FC1}},
       {"sensor inverse-depth variance", &k.sensor_inv_depth_var, true, {CV_32FC1, CV_32FC1}},
+      {"measured inverse depth", &k.ba.measured_inv_depth, true, {CV_32FC1, CV_32FC1}},
+      {"measured inverse-depth variance", &k.ba.measured_inv_depth_var, true, {CV_32FC1, CV_32FC1}},
       {"inverse-depth variance", &k.inv_depth_var, true, {CV_32FC1, CV_32FC1}},
       {"inverse depth sent", &k.sent_inv_depth, true, {CV_32FC1, CV_32FC1}},
   }};

@@ -76,6 +76,7 @@ Tracker::Impl::Impl(const TrackerParams& params, TrackerMode m)
   tolerance.min_keyframes_between = p.resend_min_keyframes;
   ba_options.max_iterations = p.ba_iterations;
   ba_options.function_tolerance = p.ba_function_tolerance;
+  ba_options.depth_residual_max_jump = p.depth_residual_max_jump;
   ba_options.robust_kernel = parseRobustKernel(p.robust_kernel);
   ba_options.robust_scale = p.robust_scale;
   ba_options.min_depth_ratio = p.min_depth_ratio;
@@ -319,6 +320,7 @@ KeyframeData Tracker::Impl::newKeyframeData(const Frame& frame, const PreparedIm
                                         p.depth_min_m, p.depth_max_m);
     depthPrior(z, p.depth_sigma_a, p.depth_sigma_b, p.depth_sigma_z0, &kf.sensor_inv_depth,
                &kf.sensor_inv_depth_var);
+    setMeasuredDepth(&kf);
   }
   return kf;
 }
@@ -344,6 +346,8 @@ void Tracker::Impl::undistortFirstKeyframe(const Vec3& omega) {
   k.depth = fresh.depth;
   k.sensor_inv_depth = fresh.sensor_inv_depth;
   k.sensor_inv_depth_var = fresh.sensor_inv_depth_var;
+  k.ba.measured_inv_depth = fresh.ba.measured_inv_depth;
+  k.ba.measured_inv_depth_var = fresh.ba.measured_inv_depth_var;
   if (mode == TrackerMode::kRgbd) {
     k.sensor_inv_depth.copyTo(k.ba.inv_depth);
     fillInverseDepth(&k.ba.inv_depth, cv::Mat(), 1.0 / p.depth_max_m);
@@ -930,6 +934,28 @@ void Tracker::Impl::setPrior(const KeyframeData& k, DenseBaKeyframe* out) const 
           out->prior_inv_depth.at<float>(v, u) = k.sensor_inv_depth.at<float>(v, u);
           out->prior_inv_depth_var.at<float>(v, u) = var;
         }
+      }
+    }
+  }
+}
+
+void Tracker::Impl::setMeasuredDepth(KeyframeData* k) const {
+  k->ba.measured_inv_depth.release();
+  k->ba.measured_inv_depth_var.release();
+  if (mode != TrackerMode::kRgbd || p.depth_residual_sigma_scale <= 0 ||
+      k->sensor_inv_depth.empty()) {
+    return;
+  }
+  const double scale2 = p.depth_residual_sigma_scale * p.depth_residual_sigma_scale;
+  k->ba.measured_inv_depth = k->sensor_inv_depth.clone();
+  k->ba.measured_inv_depth_var = k->sensor_inv_depth_var * scale2;
+  if (k->moving.empty()) return;
+  // Cells a moving object touches measure the object, not the static scene.
+  const int cell = preparer->geometry().cell;
+  for (int v = 0; v < k->sensor_inv_depth.rows; ++v) {
+    for (int u = 0; u < k->sensor_inv_depth.cols; ++u) {
+      if (cv::countNonZero(k->moving(cv::Rect(u * cell, v * cell, cell, cell))) > 0) {
+        k->ba.measured_inv_depth_var.at<float>(v, u) = 0;
       }
     }
   }

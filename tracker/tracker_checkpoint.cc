@@ -20,7 +20,8 @@ namespace radslam {
 namespace {
 
 constexpr char kMagic[8] = {'R', 'S', 'T', 'R', 'K', 'C', 'K', '\0'};
-constexpr uint32_t kFormat = 3;  // 2: object windows and planes; 3: rolling shutter
+constexpr uint32_t kFormat = 4;  // 2: object windows and planes; 3: rolling shutter;
+                                 // 4: measured depth
 
 /// What a checkpoint's state is only valid with.
 struct StateOptions {
@@ -78,6 +79,7 @@ std::string checkImages(const KeyframeGraph& graph, const std::vector<PendingFra
     const bool paired = k.grey.empty() == k.structure.empty() &&
                         k.ba.prior_inv_depth.empty() == k.ba.prior_inv_depth_var.empty() &&
                         k.sensor_inv_depth.empty() == k.sensor_inv_depth_var.empty() &&
+                        k.ba.measured_inv_depth.empty() == k.ba.measured_inv_depth_var.empty() &&
                         k.stereo_target.empty() == k.stereo_weight.empty();
     if (!paired || k.ba.inv_depth.empty())
       return "keyframe " + std::to_string(k.id) + ": images missing";

@@ -108,6 +108,8 @@ struct Tracker::Impl {
   /// The inverse-depth prior of keyframe k (sensor depth where measured, else weak) into *out.
   void setPrior(const KeyframeData& k, DenseBaKeyframe* out) const;
   void setPriors();
+  // RGB-D: the sensor's grid depth as the keyframe's measurement for BA's depth residual.
+  void setMeasuredDepth(KeyframeData* k) const;
   DenseBaGauge gauge(const DenseBaProblem& problem) const;
   /// Global BA over every keyframe that kept its image (finish()): flow edges between each and
   /// its most overlapping others, warm-started by the final estimate, then one BA over all.

@@ -118,6 +118,8 @@ void validateTrackerParams(const TrackerParams& p) {
   check(p.mono_level_rel_sigma > 0, "mono_level_rel_sigma must be > 0");
   check(p.metric_prior_rel_sigma > 0, "metric_prior_rel_sigma must be > 0");
   check(p.depth_sigma_a > 0 && p.depth_sigma_b >= 0, "depth_sigma_a > 0, depth_sigma_b >= 0");
+  check(p.depth_residual_sigma_scale >= 0, "depth_residual_sigma_scale must be >= 0");
+  check(p.depth_residual_max_jump > 0, "depth_residual_max_jump must be > 0");
   check(p.depth_min_m > 0 && p.depth_max_m > p.depth_min_m, "0 < depth_min_m < depth_max_m");
   check(p.depth_min_cell_fraction > 0 && p.depth_min_cell_fraction <= 1,
         "depth_min_cell_fraction in (0, 1]");
@@ -224,6 +226,8 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("mono_level_rel_sigma", &p.mono_level_rel_sigma);
   r.get("metric_prior_rel_sigma", &p.metric_prior_rel_sigma);
   r.get("depth_sigma_a", &p.depth_sigma_a);
+  r.get("depth_residual_sigma_scale", &p.depth_residual_sigma_scale);
+  r.get("depth_residual_max_jump", &p.depth_residual_max_jump);
   r.get("depth_sigma_b", &p.depth_sigma_b);
   r.get("depth_sigma_z0", &p.depth_sigma_z0);
   r.get("depth_min_m", &p.depth_min_m);

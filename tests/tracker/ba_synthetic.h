@@ -158,6 +158,24 @@ inline DenseBaProblem richProblem(std::mt19937* rng) {
   kf1.prior_inv_depth_var = cv::Mat(6, 8, CV_32FC1, cv::Scalar(-1));
   for (int q = 0; q < 20; ++q) kf1.prior_inv_depth_var.at<float>(q) = 0.01f + 0.001f * q;
   kf1.prior_level_var = 0.002;  // about the mean's variance from its 20 pixels' priors
+  // Measured depth on keyframes 0 and 2 (edges into them get depth residuals): a smooth slant
+  // that disagrees with the random true depths (so the robust kernel bites), a hole and a depth
+  // edge between columns 5 and 6.
+  for (int k : {0, 2}) {
+    DenseBaKeyframe& kf = p.keyframes[k];
+    const double mean = cv::mean(s.inv_depth[k])[0];
+    kf.measured_inv_depth.create(6, 8, CV_32FC1);
+    kf.measured_inv_depth_var.create(6, 8, CV_32FC1);
+    for (int v = 0; v < 6; ++v) {
+      for (int u = 0; u < 8; ++u) {
+        const double edge = u >= 6 ? 1.3 : 1.0;
+        kf.measured_inv_depth.at<float>(v, u) =
+            static_cast<float>(mean * edge * (1 + 0.01 * u - 0.005 * v));
+        kf.measured_inv_depth_var.at<float>(v, u) = static_cast<float>(0.005 * (1 + 0.1 * u));
+      }
+    }
+    kf.measured_inv_depth_var.at<float>(2, 3) = 0;
+  }
   for (int k = 0; k < 3; ++k) {
     perturbPose(&p.keyframes[k].T_world_cam, 0.01, 0.02, rng);
     perturbDepths(&p.keyframes[k].inv_depth, 0.1, rng);

@@ -1,6 +1,7 @@
 // Dense BA: the Schur-complement step and the marginal covariances equal those of the full
-// (6N + M) normal equations, assembled here pixel by pixel from denseBaResidual (whose Jacobians
-// dense_ba_test.cc checks against finite differences) and the priors (a level prior included),
+// (6N + M) normal equations, assembled here pixel by pixel from denseBaResidual and
+// denseBaDepthResidual (whose Jacobians dense_ba_test.cc checks against finite differences) and
+// the priors (a level prior included),
 // and solved / inverted densely; and the dense LLT and CHOLMOD paths agree.
 #include "tracker/dense_ba.h"
 
@@ -74,6 +75,7 @@ FullSystem buildFullSystem(const DenseBaProblem& prob, const DenseBaOptions& opt
   Eigen::MatrixXd H = Eigen::MatrixXd::Zero(total, total);
   Eigen::VectorXd b = Eigen::VectorXd::Zero(total);
   auto dcol = [&](int k, int p) { return n_pose + k * npix + p; };
+  int depth_residuals = 0;
 
   for (const DenseBaEdge& e : prob.edges) {
     const SE3& T_wi = prob.keyframes[e.i].T_world_cam;
@@ -113,9 +115,32 @@ FullSystem buildFullSystem(const DenseBaProblem& prob, const DenseBaOptions& opt
         }
         H += J.transpose() * W * J;
         b -= J.transpose() * W * r;
+        const DenseBaKeyframe& kj = prob.keyframes[e.j < 0 ? e.i : e.j];
+        if (e.T_i_other || kj.measured_inv_depth.empty()) continue;
+        double rz, wz, Hdz;
+        Eigen::Matrix<double, 1, 6> Hiz, Hjz;
+        if (!denseBaDepthResidual(cam, T_wi, T_wj, u, v, d, kj.measured_inv_depth,
+                                  kj.measured_inv_depth_var, opt.min_depth_ratio,
+                                  opt.depth_residual_max_jump, &rz, &wz, &Hiz, &Hjz, &Hdz)) {
+          continue;
+        }
+        double irls_z;
+        dense_ba::huber(wz * rz * rz, opt.robust_scale, &irls_z);
+        Eigen::RowVectorXd Jz = Eigen::RowVectorXd::Zero(total);
+        Jz(dcol(e.i, p)) = Hdz;
+        if (fs.pose_col[e.i] >= 0) {
+          Jz.segment(fs.pose_col[e.i], fs.pose_dim[e.i]) = Hiz * fs.pose_basis[e.i];
+        }
+        if (fs.pose_col[e.j] >= 0) {
+          Jz.segment(fs.pose_col[e.j], fs.pose_dim[e.j]) = Hjz * fs.pose_basis[e.j];
+        }
+        H += irls_z * wz * Jz.transpose() * Jz;
+        b -= irls_z * wz * rz * Jz.transpose();
+        ++depth_residuals;
       }
     }
   }
+  EXPECT_GT(depth_residuals, 20);
   for (int k = 0; k < K; ++k) {
     const DenseBaKeyframe& kf = prob.keyframes[k];
     if (kf.prior_inv_depth.empty()) continue;

@@ -79,6 +79,79 @@ TEST(DenseBaKernel, ResidualJacobiansMatchCentralDifferences) {
   }
 }
 
+TEST(DenseBaKernel, DepthResidualJacobiansMatchCentralDifferences) {
+  std::mt19937 rng(2);
+  const CameraModel cam = test::gridCamera(80, 60, 65.0);
+  // A smooth measured surface, so the interpolation's slope enters the Jacobians.
+  cv::Mat measured(cam.height, cam.width, CV_32FC1), var(cam.height, cam.width, CV_32FC1);
+  for (int v = 0; v < cam.height; ++v) {
+    for (int u = 0; u < cam.width; ++u) {
+      measured.at<float>(v, u) =
+          static_cast<float>(0.3 + 0.1 * std::sin(u / 9.0) + 0.05 * std::cos(v / 7.0));
+      var.at<float>(v, u) = static_cast<float>(1e-4 * (1 + u % 3));
+    }
+  }
+  std::uniform_real_distribution<double> U(-1, 1);
+  const double h = 1e-6;
+  int tested = 0;
+  for (int trial = 0; trial < 200 && tested < 50; ++trial) {
+    Vec6 a, c;
+    for (int q = 0; q < 6; ++q) {
+      a(q) = 0.1 * U(rng);
+      c(q) = 0.1 * U(rng);
+    }
+    const SE3 T_wi = SE3::exp(a), T_wj = SE3::exp(c);
+    const double u = 40 + 30 * U(rng), v = 30 + 20 * U(rng);
+    const double d = 0.3 + 0.25 * U(rng);
+    double r, w, Hd;
+    Eigen::Matrix<double, 1, 6> Hi, Hj;
+    auto residual = [&](const SE3& Ti, const SE3& Tj, double dd, double* out) {
+      double weight;
+      return denseBaDepthResidual(cam, Ti, Tj, u, v, dd, measured, var, 0.2, 1.0, out, &weight);
+    };
+    if (!denseBaDepthResidual(cam, T_wi, T_wj, u, v, d, measured, var, 0.2, 1.0, &r, &w, &Hi, &Hj,
+                              &Hd)) {
+      continue;  // lands outside the grid
+    }
+    ++tested;
+    EXPECT_GT(w, 0);
+    Eigen::Matrix<double, 1, 6> Hi_num, Hj_num;
+    for (int q = 0; q < 6; ++q) {
+      const Vec6 dq = h * Vec6::Unit(q);
+      double rp, rm;
+      ASSERT_TRUE(residual(T_wi * SE3::exp(dq), T_wj, d, &rp));
+      ASSERT_TRUE(residual(T_wi * SE3::exp(-dq), T_wj, d, &rm));
+      Hi_num(q) = (rp - rm) / (2 * h);
+      ASSERT_TRUE(residual(T_wi, T_wj * SE3::exp(dq), d, &rp));
+      ASSERT_TRUE(residual(T_wi, T_wj * SE3::exp(-dq), d, &rm));
+      Hj_num(q) = (rp - rm) / (2 * h);
+    }
+    double rp, rm;
+    ASSERT_TRUE(residual(T_wi, T_wj, d + h, &rp));
+    ASSERT_TRUE(residual(T_wi, T_wj, d - h, &rm));
+    EXPECT_LT((Hi - Hi_num).norm(), 1e-6 * (1 + Hi.norm())) << trial;
+    EXPECT_LT((Hj - Hj_num).norm(), 1e-6 * (1 + Hj.norm())) << trial;
+    EXPECT_NEAR(Hd, (rp - rm) / (2 * h), 1e-6 * (1 + std::abs(Hd))) << trial;
+  }
+  EXPECT_EQ(tested, 50);
+}
+
+TEST(DenseBaKernel, DepthResidualSkipsDepthEdgesAndMissingMeasurements) {
+  const CameraModel cam = test::gridCamera(80, 60, 65.0);
+  cv::Mat measured(cam.height, cam.width, CV_32FC1, cv::Scalar(0.5f));
+  cv::Mat var(cam.height, cam.width, CV_32FC1, cv::Scalar(1e-4f));
+  measured.colRange(41, 80).setTo(0.25f);  // a depth edge between columns 40 and 41
+  var.at<float>(10, 20) = 0;               // a hole
+  double r, w;
+  const SE3 I;
+  EXPECT_TRUE(denseBaDepthResidual(cam, I, I, 30.5, 30.5, 0.5, measured, var, 0.2, 0.1, &r, &w));
+  EXPECT_NEAR(r, 0.0, 1e-12);
+  EXPECT_NEAR(w, 1e4, 1e-3);
+  EXPECT_FALSE(denseBaDepthResidual(cam, I, I, 40.5, 30.5, 0.5, measured, var, 0.2, 0.1, &r, &w));
+  EXPECT_FALSE(denseBaDepthResidual(cam, I, I, 19.5, 9.5, 0.5, measured, var, 0.2, 0.1, &r, &w));
+  EXPECT_FALSE(denseBaDepthResidual(cam, I, I, 79.5, 30.0, 0.5, measured, var, 0.2, 0.1, &r, &w));
+}
+
 TEST(DenseBaKernel, LeftPerturbationJacobianMatchesCentralDifferences) {
   // The kernel's own J_xi (T_j_i <- Exp(xi) T_j_i), including points near infinity (d -> 0).
   const dense_ba::Pinhole<double> cam{60.0, 61.0, 39.5, 29.5};
