@@ -159,14 +159,8 @@ bool denseBaDepthResidual(const CameraModel& camera, const SE3& T_world_i, const
                                    &J_d)) {
     return false;
   }
-  std::vector<double> mean(camera.width * camera.height), var(mean.size());
-  for (size_t p = 0; p < mean.size(); ++p) {
-    const double m = measured_inv_depth.at<float>(static_cast<int>(p));
-    const double s2 = measured_inv_depth_var.at<float>(static_cast<int>(p));
-    const bool valid = std::isfinite(m) && s2 > 0 && std::isfinite(s2);
-    mean[p] = valid ? m : 0.0;
-    var[p] = valid ? s2 : 0.0;
-  }
+  std::vector<double> mean, var;
+  dense_ba::depthSamples(measured_inv_depth, measured_inv_depth_var, &mean, &var);
   dense_ba::DepthSample sample;
   if (!dense_ba::sampleDepth(mean.data(), var.data(), camera.width, camera.height, pu, pv, max_jump,
                              &sample)) {

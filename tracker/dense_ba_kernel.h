@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <vector>
 
 #include <Eigen/Core>
 
@@ -87,8 +88,24 @@ struct DepthSample {
   double value = 0, du = 0, dv = 0, var = 0;
 };
 
-inline bool sampleDepth(const double* mean, const double* var, int width, int height, double pu,
-                        double pv, double max_jump, DepthSample* out) {
+/// A measured map (CV_32FC1 mean and variance) as sampleDepth reads it: row-major doubles, the
+/// variance 0 (and the mean 0) where the mean is not finite or the variance not in (0, inf).
+inline void depthSamples(const cv::Mat& mean, const cv::Mat& var, std::vector<double>* out_mean,
+                         std::vector<double>* out_var) {
+  out_mean->resize(mean.total());
+  out_var->resize(mean.total());
+  for (size_t p = 0; p < mean.total(); ++p) {
+    const double m = mean.at<float>(static_cast<int>(p));
+    const double s2 = var.at<float>(static_cast<int>(p));
+    const bool valid = std::isfinite(m) && s2 > 0 && std::isfinite(s2);
+    (*out_mean)[p] = valid ? m : 0.0;
+    (*out_var)[p] = valid ? s2 : 0.0;
+  }
+}
+
+[[gnu::always_inline]] inline bool sampleDepth(const double* mean, const double* var, int width,
+                                               int height, double pu, double pv, double max_jump,
+                                               DepthSample* out) {
   const double fu = std::floor(pu), fv = std::floor(pv);
   if (!(fu >= 0 && fv >= 0 && fu + 1 < width && fv + 1 < height)) return false;
   const int p = static_cast<int>(fv) * width + static_cast<int>(fu);

@@ -46,8 +46,8 @@ void DenseBundleAdjuster::System::setup(const DenseBaProblem& problem,
   prior_omega_.assign(K, Eigen::VectorXd());
   level_alpha_.assign(K, 0.0);
   level_u_.assign(K, Eigen::VectorXd());
-  measured_.assign(K, Eigen::VectorXd());
-  measured_var_.assign(K, Eigen::VectorXd());
+  measured_.assign(K, {});
+  measured_var_.assign(K, {});
   var_.assign(K, -1);
   num_vars_ = 0;
   for (int k = 0; k < K; ++k) {
@@ -76,13 +76,8 @@ void DenseBundleAdjuster::System::setup(const DenseBaProblem& problem,
       }
     }
     if (!kf.measured_inv_depth.empty()) {
-      measured_[k] = toVector(kf.measured_inv_depth);
-      measured_var_[k] = toVector(kf.measured_inv_depth_var);
-      for (int p = 0; p < npix_; ++p) {
-        const double var = measured_var_[k](p);
-        const bool valid = std::isfinite(measured_[k](p)) && var > 0 && var < kInf;
-        if (!valid) measured_[k](p) = measured_var_[k](p) = 0;
-      }
+      dense_ba::depthSamples(kf.measured_inv_depth, kf.measured_inv_depth_var, &measured_[k],
+                             &measured_var_[k]);
     }
     bool fixed = kf.fixed_pose;
     switch (options_.gauge) {
@@ -176,7 +171,7 @@ double DenseBundleAdjuster::System::keyframePass(int kf, const std::vector<SE3>&
     x.A.setZero();
     x.g.setZero();
     x.B = kLinearize && e.j >= 0 ? lin->B[kf].data() + 6 * e.slot : nullptr;
-    const bool measured = e.j >= 0 && measured_[e.j].size() > 0;
+    const bool measured = e.j >= 0 && !measured_[e.j].empty();
     x.measured = measured ? measured_[e.j].data() : nullptr;
     x.measured_var = measured ? measured_var_[e.j].data() : nullptr;
   }

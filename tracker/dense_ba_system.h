@@ -156,7 +156,7 @@ class DenseBundleAdjuster::System {
   std::vector<double> level_alpha_;
   std::vector<Eigen::VectorXd> level_u_;
   // Measured inverse depth and its variance per keyframe (0 where none; empty for none).
-  std::vector<Eigen::VectorXd> measured_, measured_var_;
+  std::vector<std::vector<double>> measured_, measured_var_;
   /// Sherman-Morrison factor of keyframe k's depth block: P^-1 = D^-1 - beta q q^T, q = D^-1 u,
   /// beta = alpha / (1 + alpha u^T D^-1 u); 0 without a level prior.
   double levelBeta(const Linearization& lin, int k) const;

@@ -27,7 +27,11 @@ void checkImage(const cv::Mat& m, int type, const CameraModel& cam, const std::s
 }
 
 void validate(const CameraModel& camera, const std::vector<DenseBaKeyframe>& keyframes,
-              const std::vector<MotionOnlyEdge>& edges) {
+              const std::vector<MotionOnlyEdge>& edges, const MotionOnlyDepth& frame_depth) {
+  if (!frame_depth.inv_depth.empty() || !frame_depth.inv_depth_var.empty()) {
+    checkImage(frame_depth.inv_depth, CV_32FC1, camera, "frame inv_depth");
+    checkImage(frame_depth.inv_depth_var, CV_32FC1, camera, "frame inv_depth_var");
+  }
   // Camera and keyframes follow the dense BA rules.
   DenseBaProblem problem;
   problem.camera = camera;
@@ -52,7 +56,8 @@ double MotionOnlyAligner::linearize(const CameraModel& camera,
                                     const std::vector<DenseBaKeyframe>& keyframes,
                                     const std::vector<MotionOnlyEdge>& edges,
                                     const SE3& T_world_frame, Mat6* H, Vec6* g, int* num_residuals,
-                                    double* mean_error_px) const {
+                                    double* mean_error_px,
+                                    const MotionOnlyDepth& frame_depth) const {
   const dense_ba::Pinhole<double> cam{camera.fx, camera.fy, camera.cx, camera.cy};
   const SE3 T_frame_world = T_world_frame.inverse();
   Mat6 A = Mat6::Zero();
@@ -62,6 +67,11 @@ double MotionOnlyAligner::linearize(const CameraModel& camera,
   Mat26 J;
   Eigen::Vector2d Jd;
   const bool jac = H || g;
+  std::vector<double> measured, measured_var;
+  if (!frame_depth.inv_depth.empty()) {
+    dense_ba::depthSamples(frame_depth.inv_depth, frame_depth.inv_depth_var, &measured,
+                           &measured_var);
+  }
   for (const MotionOnlyEdge& e : edges) {
     const DenseBaKeyframe& kf = keyframes[e.keyframe];
     const SE3 T_f_k = T_frame_world * kf.T_world_cam;
@@ -80,9 +90,9 @@ double MotionOnlyAligner::linearize(const CameraModel& camera,
         const double tu = target[u][0], tv = target[u][1];
         if (!std::isfinite(tu) || !std::isfinite(tv) || !std::isfinite(d[u])) continue;
         double pu, pv;
-        if (!dense_ba::reproject<double>(R, t, cam, (u - camera.cx) / camera.fx, yn, d[u],
-                                         options_.min_depth_ratio, &pu, &pv, jac ? &J : nullptr,
-                                         nullptr)) {
+        const double xn = (u - camera.cx) / camera.fx;
+        if (!dense_ba::reproject<double>(R, t, cam, xn, yn, d[u], options_.min_depth_ratio, &pu,
+                                         &pv, jac ? &J : nullptr, nullptr)) {
           continue;
         }
         const double ru = tu - pu, rv = tv - pv;
@@ -100,6 +110,28 @@ double MotionOnlyAligner::linearize(const CameraModel& camera,
           A.noalias() += J.transpose() * WJ;
           b.noalias() += WJ.transpose() * Eigen::Vector2d(ru, rv);
         }
+        dense_ba::DepthSample m;
+        if (measured.empty() ||
+            !dense_ba::sampleDepth(measured.data(), measured_var.data(), camera.width,
+                                   camera.height, pu, pv, options_.depth_residual_max_jump, &m)) {
+          continue;
+        }
+        const double iz = 1 / (R.row(2).dot(Vec3(xn, yn, 1)) + t(2) * d[u]), s = d[u] * iz;
+        const double rz = m.value - s;
+        double irls_z;
+        cost += dense_ba::robustCost(options_.robust_kernel, rz * rz / m.var, options_.robust_scale,
+                                     &irls_z);
+        if (jac) {
+          // As the reprojection's: dr/d delta = the prediction's Jacobian wrt xi.
+          Vec6 jz;
+          double unused_jd;
+          const Eigen::Matrix<double, 1, 6> j0 = J.row(0), j1 = J.row(1);
+          dense_ba::depthResidualJacobians(m, s, (pu - cam.cx) / cam.fx, (pv - cam.cy) / cam.fy, iz,
+                                           t(2), j0, j1, 0.0, 0.0, &jz, &unused_jd);
+          const double wz = irls_z / m.var;
+          A.noalias() += (wz * jz) * jz.transpose();
+          b.noalias() += (wz * rz) * jz;
+        }
       }
     }
   }
@@ -113,14 +145,16 @@ double MotionOnlyAligner::linearize(const CameraModel& camera,
 MotionOnlyResult MotionOnlyAligner::align(const CameraModel& camera,
                                           const std::vector<DenseBaKeyframe>& keyframes,
                                           const std::vector<MotionOnlyEdge>& edges,
-                                          const SE3& T_world_frame_init) const {
-  validate(camera, keyframes, edges);
+                                          const SE3& T_world_frame_init,
+                                          const MotionOnlyDepth& frame_depth) const {
+  validate(camera, keyframes, edges, frame_depth);
   MotionOnlyResult result;
   result.T_world_frame = T_world_frame_init;
   Mat6 H;
   Vec6 g;
   int n = 0;
-  double cost = linearize(camera, keyframes, edges, result.T_world_frame, &H, &g, &n);
+  double cost =
+      linearize(camera, keyframes, edges, result.T_world_frame, &H, &g, &n, nullptr, frame_depth);
   result.initial_cost = cost;
   if (n < options_.min_residuals) {
     result.error = "motion-only: " + std::to_string(n) + " valid pixels, need " +
@@ -144,7 +178,8 @@ MotionOnlyResult MotionOnlyAligner::align(const CameraModel& camera,
     Mat6 H_new;
     Vec6 g_new;
     int n_new = 0;
-    const double cost_new = linearize(camera, keyframes, edges, T_new, &H_new, &g_new, &n_new);
+    const double cost_new =
+        linearize(camera, keyframes, edges, T_new, &H_new, &g_new, &n_new, nullptr, frame_depth);
     if (cost_new < cost && n_new >= options_.min_residuals) {
       const double decrease = (cost - cost_new) / std::max(cost, 1e-300);
       result.T_world_frame = T_new;
@@ -166,7 +201,7 @@ MotionOnlyResult MotionOnlyAligner::align(const CameraModel& camera,
   }
   result.final_cost = cost;
   linearize(camera, keyframes, edges, result.T_world_frame, nullptr, nullptr, &result.num_residuals,
-            &result.mean_reprojection_error_px);
+            &result.mean_reprojection_error_px, frame_depth);
   const Eigen::LLT<Mat6> llt(H);
   if (llt.info() != Eigen::Success) {
     result.error = "motion-only: Hessian not positive definite (degenerate geometry)";

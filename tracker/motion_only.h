@@ -5,7 +5,8 @@
 // target = p + flow and weight = confidence (as for DenseBaEdge), and calls align() with the
 // constant-velocity prediction as the initial pose. Residual per grid pixel p of keyframe k:
 //   r = target(p) - Pi(T_frame_world T_world_k Pi^-1(p, d_k(p)))         (grid pixels)
-// with the same Huber kernel and depth-ratio test as dense BA (tracker/dense_ba.h).
+// with the same Huber kernel and depth-ratio test as dense BA (tracker/dense_ba.h), and, with a
+// measured frame depth (MotionOnlyDepth), BA's depth residual of the same point.
 //
 // Conventions: T_world_frame is perturbed on the right, T_world_frame * Exp(delta), delta = (v, w);
 // the returned covariance is of delta (as PoseStamped::covariance). It is the inverse of the
@@ -33,11 +34,20 @@ struct MotionOnlyEdge {
   cv::Mat weight;
 };
 
+/// The frame's measured inverse depth (1/m) and its variance (1/m^2), CV_32FC1, grid size, as
+/// DenseBaKeyframe::measured_inv_depth (RGB-D: the sensor's); both empty for none. Every point
+/// reprojected into the frame then also has dense BA's depth residual (tracker/dense_ba.h).
+struct MotionOnlyDepth {
+  cv::Mat inv_depth;
+  cv::Mat inv_depth_var;
+};
+
 struct MotionOnlyOptions {
   int max_iterations = 10;                            // linear solves (accepted + rejected steps)
   RobustKernel robust_kernel = RobustKernel::kHuber;  // as DenseBaOptions
-  double robust_scale = 2.4477;  // whitened px, as DenseBaOptions (<= 0: least squares)
-  double min_depth_ratio = 0.2;  // as DenseBaOptions
+  double robust_scale = 2.4477;           // whitened px, as DenseBaOptions (<= 0: least squares)
+  double min_depth_ratio = 0.2;           // as DenseBaOptions
+  double depth_residual_max_jump = 0.03;  // as DenseBaOptions
   /// Levenberg-Marquardt on the 6x6 system: diag += lambda * max(diag, min_lm_diagonal).
   double initial_lambda = 1e-6;
   double lambda_up = 10.0;
@@ -69,14 +79,15 @@ class MotionOnlyAligner {
   /// input (naming the edge and what is wrong); too few valid pixels or a degenerate Hessian give
   /// ok = false with the initial pose returned.
   MotionOnlyResult align(const CameraModel& camera, const std::vector<DenseBaKeyframe>& keyframes,
-                         const std::vector<MotionOnlyEdge>& edges,
-                         const SE3& T_world_frame_init) const;
+                         const std::vector<MotionOnlyEdge>& edges, const SE3& T_world_frame_init,
+                         const MotionOnlyDepth& frame_depth = {}) const;
 
   /// Robust cost at T_world_frame with the Gauss-Newton Hessian H = sum J^T W J and gradient
   /// g = sum J^T W r (J = dr/d delta, W including the IRLS weights), so d cost / d delta = 2 g.
   double linearize(const CameraModel& camera, const std::vector<DenseBaKeyframe>& keyframes,
                    const std::vector<MotionOnlyEdge>& edges, const SE3& T_world_frame, Mat6* H,
-                   Vec6* g, int* num_residuals = nullptr, double* mean_error_px = nullptr) const;
+                   Vec6* g, int* num_residuals = nullptr, double* mean_error_px = nullptr,
+                   const MotionOnlyDepth& frame_depth = {}) const;
 
  private:
   MotionOnlyOptions options_;

@@ -55,6 +55,7 @@ Tracker::Impl::Impl(const TrackerParams& params, TrackerMode m)
         m.robust_kernel = parseRobustKernel(params.robust_kernel);
         m.robust_scale = params.robust_scale;
         m.min_depth_ratio = params.min_depth_ratio;
+        m.depth_residual_max_jump = params.depth_residual_max_jump;
         return m;
       }()) {
   upsampling.sigma_range = p.upsample_sigma_range;
@@ -316,13 +317,17 @@ KeyframeData Tracker::Impl::newKeyframeData(const Frame& frame, const PreparedIm
     kf.depth = frameDepth(image);
   kf.ba.T_world_cam = T_world_cam;
   if (mode == TrackerMode::kRgbd) {
-    const cv::Mat z = sensorDepthToGrid(image.depth, g.cell, p.depth_min_cell_fraction,
-                                        p.depth_min_m, p.depth_max_m);
-    depthPrior(z, p.depth_sigma_a, p.depth_sigma_b, p.depth_sigma_z0, &kf.sensor_inv_depth,
-               &kf.sensor_inv_depth_var);
+    sensorInverseDepth(image, &kf.sensor_inv_depth, &kf.sensor_inv_depth_var);
     setMeasuredDepth(&kf);
   }
   return kf;
+}
+
+void Tracker::Impl::sensorInverseDepth(const PreparedImage& image, cv::Mat* inv_depth,
+                                       cv::Mat* inv_depth_var) const {
+  const cv::Mat z = sensorDepthToGrid(image.depth, preparer->geometry().cell,
+                                      p.depth_min_cell_fraction, p.depth_min_m, p.depth_max_m);
+  depthPrior(z, p.depth_sigma_a, p.depth_sigma_b, p.depth_sigma_z0, inv_depth, inv_depth_var);
 }
 
 void Tracker::Impl::initialise(const Frame& frame, const PreparedImage& image, TrackerOutput* out) {
@@ -358,6 +363,12 @@ void Tracker::Impl::undistortFirstKeyframe(const Vec3& omega) {
 void Tracker::Impl::track(const Frame& frame, const PreparedImage& image, TrackerOutput* out) {
   const GridGeometry& g = preparer->geometry();
   const KeyframeData& ref = graph.last();
+  frame_measured = MotionOnlyDepth();
+  if (mode == TrackerMode::kRgbd && p.depth_residual_sigma_scale > 0) {
+    cv::Mat inv_depth, inv_depth_var;
+    sensorInverseDepth(image, &inv_depth, &inv_depth_var);
+    frame_measured = measuredDepth(inv_depth, inv_depth_var, moving);
+  }
   const SE3 T_pred = predictPose(frame.header.utime);
 
   const auto t_flow = Clock::now();
@@ -379,8 +390,8 @@ void Tracker::Impl::track(const Frame& frame, const PreparedImage& image, Tracke
   stats.flow_ms += msSince(t_flow);
   stats.valid_fraction = c.valid_fraction;
 
-  MotionOnlyResult aligned =
-      aligner.align(g.grid, {ref.ba}, {MotionOnlyEdge{0, c.target, c.weight}}, T_pred);
+  MotionOnlyResult aligned = aligner.align(
+      g.grid, {ref.ba}, {MotionOnlyEdge{0, c.target, c.weight}}, T_pred, frame_measured);
   cv::Scalar mean, stddev;
   cv::meanStdDev(image.grey, mean, stddev);
   const bool lost =
@@ -459,7 +470,7 @@ void Tracker::Impl::track(const Frame& frame, const PreparedImage& image, Tracke
   r.cov_rel = aligned.covariance;
   r.state = trackingState();
   frames.push_back(r);
-  pending_frames.push_back(PendingFrame{frames.size() - 1, c.target, c.weight});
+  pending_frames.push_back(PendingFrame{frames.size() - 1, c.target, c.weight, frame_measured});
   out->pose = poseMessage(r);
 }
 
@@ -601,8 +612,9 @@ void Tracker::Impl::segmentMotion(const KeyframeData& ref, int64_t frame_index,
       const Correspondences c =
           correspond(ref.grey, ref.gradients, ref.structure, image.grey, tracked->forward,
                      tracked->backward, ref.moving, ground == 0);
-      const MotionOnlyResult grounded = aligner.align(
-          g.grid, {ref.ba}, {MotionOnlyEdge{0, c.target, c.weight}}, aligned->T_world_frame);
+      const MotionOnlyResult grounded =
+          aligner.align(g.grid, {ref.ba}, {MotionOnlyEdge{0, c.target, c.weight}},
+                        aligned->T_world_frame, frame_measured);
       if (!grounded.ok) return;
       first_pose = *aligned;
       *aligned = grounded;
@@ -626,8 +638,9 @@ void Tracker::Impl::segmentMotion(const KeyframeData& ref, int64_t frame_index,
     tracked->correspondences = correspond(ref.grey, ref.gradients, ref.structure, image.grey,
                                           tracked->forward, tracked->backward, ref.moving, moving);
     const Correspondences& c = tracked->correspondences;
-    const MotionOnlyResult again = aligner.align(
-        g.grid, {ref.ba}, {MotionOnlyEdge{0, c.target, c.weight}}, aligned->T_world_frame);
+    const MotionOnlyResult again =
+        aligner.align(g.grid, {ref.ba}, {MotionOnlyEdge{0, c.target, c.weight}},
+                      aligned->T_world_frame, frame_measured);
     if (again.ok) *aligned = again;
     stats.valid_fraction = c.valid_fraction;
     if (moving.empty()) return;
@@ -644,8 +657,8 @@ void Tracker::Impl::realignFrames(const std::vector<int>* leaving) {
       continue;
     }
     const KeyframeData& ref = graph.keyframe(r.ref_kf);
-    const MotionOnlyResult aligned =
-        aligner.align(g.grid, {ref.ba}, {MotionOnlyEdge{0, f.target, f.weight}}, framePose(r));
+    const MotionOnlyResult aligned = aligner.align(
+        g.grid, {ref.ba}, {MotionOnlyEdge{0, f.target, f.weight}}, framePose(r), f.measured);
     if (aligned.ok) {
       r.T_kf_frame = ref.ba.T_world_cam.inverse() * aligned.T_world_frame;
       r.cov_rel = aligned.covariance;
@@ -939,26 +952,33 @@ void Tracker::Impl::setPrior(const KeyframeData& k, DenseBaKeyframe* out) const 
   }
 }
 
-void Tracker::Impl::setMeasuredDepth(KeyframeData* k) const {
-  k->ba.measured_inv_depth.release();
-  k->ba.measured_inv_depth_var.release();
-  if (mode != TrackerMode::kRgbd || p.depth_residual_sigma_scale <= 0 ||
-      k->sensor_inv_depth.empty()) {
-    return;
+MotionOnlyDepth Tracker::Impl::measuredDepth(const cv::Mat& sensor_inv_depth,
+                                             const cv::Mat& sensor_inv_depth_var,
+                                             const cv::Mat& moving_mask) const {
+  MotionOnlyDepth out;
+  if (mode != TrackerMode::kRgbd || p.depth_residual_sigma_scale <= 0 || sensor_inv_depth.empty()) {
+    return out;
   }
   const double scale2 = p.depth_residual_sigma_scale * p.depth_residual_sigma_scale;
-  k->ba.measured_inv_depth = k->sensor_inv_depth.clone();
-  k->ba.measured_inv_depth_var = k->sensor_inv_depth_var * scale2;
-  if (k->moving.empty()) return;
+  out.inv_depth = sensor_inv_depth.clone();
+  out.inv_depth_var = sensor_inv_depth_var * scale2;
+  if (moving_mask.empty()) return out;
   // Cells a moving object touches measure the object, not the static scene.
   const int cell = preparer->geometry().cell;
-  for (int v = 0; v < k->sensor_inv_depth.rows; ++v) {
-    for (int u = 0; u < k->sensor_inv_depth.cols; ++u) {
-      if (cv::countNonZero(k->moving(cv::Rect(u * cell, v * cell, cell, cell))) > 0) {
-        k->ba.measured_inv_depth_var.at<float>(v, u) = 0;
+  for (int v = 0; v < out.inv_depth.rows; ++v) {
+    for (int u = 0; u < out.inv_depth.cols; ++u) {
+      if (cv::countNonZero(moving_mask(cv::Rect(u * cell, v * cell, cell, cell))) > 0) {
+        out.inv_depth_var.at<float>(v, u) = 0;
       }
     }
   }
+  return out;
+}
+
+void Tracker::Impl::setMeasuredDepth(KeyframeData* k) const {
+  const MotionOnlyDepth m = measuredDepth(k->sensor_inv_depth, k->sensor_inv_depth_var, k->moving);
+  k->ba.measured_inv_depth = m.inv_depth;
+  k->ba.measured_inv_depth_var = m.inv_depth_var;
 }
 
 void Tracker::Impl::setPriors() {

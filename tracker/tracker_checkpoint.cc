@@ -5,7 +5,7 @@
 //   stereo baseline, flags, lost streak, statistics
 //   u32 levels of the previous frame's coarse images (rolling shutter), each image; its time
 //   u32 frames, each: header, index, reference keyframe, relative pose and covariance, state
-//   u32 pending frames, each: frame record and its correspondences
+//   u32 pending frames, each: frame record, its correspondences and measured depth
 //   the keyframe graph (KeyframeGraph::save), the object tracker and the motion segmenter
 #include <array>
 #include <cstring>
@@ -92,6 +92,11 @@ std::string checkImages(const KeyframeGraph& graph, const std::vector<PendingFra
     if (f.target.size() != grid || f.weight.size() != grid || f.target.type() != CV_32FC2 ||
         f.weight.type() != CV_32FC2)
       return "pending frame with correspondences of a wrong size";
+    const std::array<int, 2> depth_types{CV_32FC1, CV_32FC1};
+    if (!imageFits(f.measured.inv_depth, grid, depth_types) ||
+        !imageFits(f.measured.inv_depth_var, grid, depth_types) ||
+        f.measured.inv_depth.empty() != f.measured.inv_depth_var.empty())
+      return "pending frame with a measured depth of a wrong size";
   }
   return "";
 }
@@ -132,6 +137,8 @@ void Tracker::saveCheckpoint(const std::string& path) const {
     w.put<uint64_t>(f.record);
     w.mat(f.target);
     w.mat(f.weight);
+    w.mat(f.measured.inv_depth);
+    w.mat(f.measured.inv_depth_var);
   }
   s.graph.save(&w);
   w.put<uint8_t>(s.objects != nullptr);
@@ -204,6 +211,8 @@ void Tracker::loadCheckpoint(const std::string& path) {
     if (f.record >= s->frames.size()) r.fail("pending frame out of range");
     f.target = r.mat();
     f.weight = r.mat();
+    f.measured.inv_depth = r.mat();
+    f.measured.inv_depth_var = r.mat();
   }
   s->graph.load(&r);
   for (const FrameRecord& f : s->frames)

@@ -36,6 +36,7 @@ struct FrameRecord {
 struct PendingFrame {
   size_t record = 0;  // index into Tracker::Impl::frames
   cv::Mat target, weight;
+  MotionOnlyDepth measured;  // RGB-D: the frame's measured grid depth
 };
 
 inline Mat6 composeCovariance(const Mat6& cov_kf, const SE3& T_kf_frame, const Mat6& cov_rel) {
@@ -108,8 +109,15 @@ struct Tracker::Impl {
   /// The inverse-depth prior of keyframe k (sensor depth where measured, else weak) into *out.
   void setPrior(const KeyframeData& k, DenseBaKeyframe* out) const;
   void setPriors();
-  // RGB-D: the sensor's grid depth as the keyframe's measurement for BA's depth residual.
+  // RGB-D: the sensor's grid depth as the measurement of BA's and the alignment's depth
+  // residual (empty when off), without the cells a moving object touches.
+  MotionOnlyDepth measuredDepth(const cv::Mat& sensor_inv_depth,
+                                const cv::Mat& sensor_inv_depth_var,
+                                const cv::Mat& moving_mask) const;
   void setMeasuredDepth(KeyframeData* k) const;
+  // RGB-D: the sensor's depth on the grid as inverse depth with the noise model's variance.
+  void sensorInverseDepth(const PreparedImage& image, cv::Mat* inv_depth,
+                          cv::Mat* inv_depth_var) const;
   DenseBaGauge gauge(const DenseBaProblem& problem) const;
   /// Global BA over every keyframe that kept its image (finish()): flow edges between each and
   /// its most overlapping others, warm-started by the final estimate, then one BA over all.
@@ -158,7 +166,8 @@ struct Tracker::Impl {
   /// frame's instance and class masks from it (empty when nothing moves).
   std::unique_ptr<MotionSegmenter> segmenter;
   cv::Mat segmented_instance, segmented_class;
-  cv::Mat frame_depth;  // stereo: the current frame's depth once frameDepth computed it
+  cv::Mat frame_depth;             // stereo: the current frame's depth once frameDepth computed it
+  MotionOnlyDepth frame_measured;  // RGB-D: the current frame's measuredDepth()
   /// The current frame's metric depth (CV_32FC1 working size, m, 0 = unknown): the sensor's
   /// (RGB-D) or from one more flow, left to right (stereo, computed once per frame); empty in
   /// monocular mode.

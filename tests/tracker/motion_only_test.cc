@@ -63,6 +63,43 @@ TEST(MotionOnly, GradientIsHalfTheDerivativeOfTheRobustCost) {
   }
 }
 
+TEST(MotionOnly, GradientWithTheFrameDepthIsHalfTheDerivativeOfTheRobustCost) {
+  std::mt19937 rng(3);
+  const AlignmentCase s = makeCase(&rng, 0.5);
+  // A smooth measured depth of the frame that disagrees with the scene (the kernel bites), with
+  // a hole.
+  const CameraModel& cam = s.scene.camera;
+  const double mean = cv::mean(s.scene.inv_depth.back())[0];
+  MotionOnlyDepth depth;
+  depth.inv_depth.create(cam.height, cam.width, CV_32FC1);
+  depth.inv_depth_var.create(cam.height, cam.width, CV_32FC1);
+  for (int v = 0; v < cam.height; ++v) {
+    for (int u = 0; u < cam.width; ++u) {
+      depth.inv_depth.at<float>(v, u) = static_cast<float>(mean * (1 + 0.004 * u - 0.003 * v));
+      depth.inv_depth_var.at<float>(v, u) = static_cast<float>(1e-3 * mean * mean);
+    }
+  }
+  depth.inv_depth_var.at<float>(5, 7) = 0;
+  SE3 T = s.T_world_frame;
+  test::perturbPose(&T, 0.01, 0.02, &rng);
+  MotionOnlyAligner aligner;
+  Mat6 H, H_flow;
+  Vec6 g, g_flow;
+  aligner.linearize(cam, s.keyframes, s.edges, T, &H, &g, nullptr, nullptr, depth);
+  aligner.linearize(cam, s.keyframes, s.edges, T, &H_flow, &g_flow);
+  EXPECT_GT((H - H_flow).norm(), 1e-3 * H_flow.norm());  // the depth residual takes part
+  const double h = 1e-6;
+  for (int q = 0; q < 6; ++q) {
+    const Vec6 dq = h * Vec6::Unit(q);
+    const double cp = aligner.linearize(cam, s.keyframes, s.edges, T * SE3::exp(dq), nullptr,
+                                        nullptr, nullptr, nullptr, depth);
+    const double cm = aligner.linearize(cam, s.keyframes, s.edges, T * SE3::exp(-dq), nullptr,
+                                        nullptr, nullptr, nullptr, depth);
+    const double num = 0.5 * (cp - cm) / (2 * h);
+    EXPECT_NEAR(g(q), num, 1e-5 * (1 + std::abs(num))) << q;
+  }
+}
+
 TEST(MotionOnly, HessianIsTheCostCurvatureAtAZeroResidualPose) {
   // At r = 0 the cost's Hessian is exactly 2 J^T W J: checks J itself, not only J^T W r.
   std::mt19937 rng(2);
