@@ -31,8 +31,9 @@
 //    + per edge (i, j) into a keyframe j with a measured inverse depth m_j, per point used above,
 //      rho(r_z^2 / var) with r_z = m_j(pixel) - d_j: the measurement interpolated where the point
 //      lands against the point's own inverse depth d_j = d / z_j-ratio in camera j (RGB-D
-//      odometry's geometric term), var the largest of the four samples' variances
-//      (dense_ba::sampleDepth; points landing across a depth edge have none).
+//      odometry's geometric term), m_j from a plane fitted to the 3 x 3 samples around the
+//      landing, var the largest of their variances times the measurement's number of uses
+//      (dense_ba::sampleDepth; points landing at a depth edge have none).
 //  - Points whose depth ratio z_j / z_i falls below min_depth_ratio are dropped for that
 //    linearisation (see dense_ba::reproject in tracker/dense_ba_kernel.h).
 //  - Normal equations [C E; E^T P][dxi; dd] = [v; w] with P per keyframe diagonal (plus a rank-one
@@ -74,7 +75,10 @@ struct DenseBaKeyframe {
   /// Optional measured inverse depth of this keyframe's view (RGB-D: the sensor, 1/m) and its
   /// variance (1/m^2), CV_32FC1, grid size, both empty for none; pixels without a measurement
   /// as for the prior. Every edge into this keyframe then also has a depth residual per point
-  /// (see the cost above): the flow fixes where the points land, this how far they are.
+  /// (see the cost above): the flow fixes where the points land, this how far they are. The
+  /// residuals of all edges into the keyframe and its prior (RGB-D: the same sensor data) use
+  /// one measurement, whose noise they share: each residual's variance is multiplied by the
+  /// number of those uses, so that together they count it about once.
   cv::Mat measured_inv_depth;
   cv::Mat measured_inv_depth_var;
 };
@@ -135,9 +139,9 @@ struct DenseBaOptions {
   /// Points with z_j / z_i below this are dropped (DROID-SLAM's MIN_DEPTH = 0.2 on the same
   /// homogeneous z).
   double min_depth_ratio = 0.2;
-  /// Depth residuals skip points whose four neighbouring measurements spread by more than this
-  /// fraction of the largest (a depth edge between them, or a slant too steep for the grid).
-  double depth_residual_max_jump = 0.03;
+  /// Depth residuals skip points whose nine nearest measurements spread by more than this
+  /// fraction of the largest (a depth edge among them, or a slant too steep for the grid).
+  double depth_residual_max_jump = 0.1;
   /// Inverse depths are clamped to this range at the start and after every step (1/m; a
   /// non-finite start value becomes min_inv_depth).
   double min_inv_depth = 1e-3;
@@ -218,7 +222,8 @@ bool denseBaResidual(const CameraModel& camera, const SE3& T_world_i, const SE3&
                      Mat26* H_j = nullptr, Eigen::Vector2d* H_d = nullptr);
 
 /// The depth residual of one pixel of edge (i, j) into a keyframe with a measured inverse depth
-/// (CV_32FC1 mean and variance, grid size), with its whitening weight 1 / var and Jacobians of
+/// (CV_32FC1 mean and variance, grid size), with the sample's weight 1 / var (which BA divides
+/// among the measurement's uses, see DenseBaKeyframe::measured_inv_depth) and Jacobians of
 /// r wrt right perturbations of T_world_i, T_world_j and wrt d. False when the point is dropped
 /// or lands where the measurement gives none (dense_ba::sampleDepth). For the reference and the
 /// tests, as denseBaResidual.

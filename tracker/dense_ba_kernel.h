@@ -79,11 +79,14 @@ inline bool reproject(const Eigen::Matrix<S, 3, 3>& R, const Eigen::Matrix<S, 3,
 }
 
 /// A measured inverse-depth map (row-major, width x height, pixel centres at integers; variance
-/// 0 where nothing was measured) interpolated bilinearly at (pu, pv): the value, its gradient
-/// (per pixel) and the largest variance of the four samples (a weight that does not move with
-/// the point inside a cell). False outside the grid's interior (also for NaN), where a sample is
-/// missing, and where the four straddle a depth edge: their spread exceeds max_jump times the
-/// largest (a surface seen through a cell boundary, whose interpolation would be neither).
+/// 0 where nothing was measured) at (pu, pv): the plane (affine in the pixel) fitted to the
+/// 3 x 3 samples around the nearest one, its value and gradient there, and the largest variance
+/// of the nine (a weight that does not move with the point). The gradient enters the residual's
+/// Jacobians: fitted over nine samples its noise is a sixth to a twelfth of a difference of two
+/// neighbours', and at the centre it is uncorrelated with the value's (the errors-in-variables
+/// bias of a noisy slope made the pose marginals overconfident). False within one sample of the
+/// border (also for NaN), where a sample is missing, and where the nine spread by more than
+/// max_jump times the largest (a depth edge, whose fit would be neither surface).
 struct DepthSample {
   double value = 0, du = 0, dv = 0, var = 0;
 };
@@ -103,23 +106,31 @@ inline void depthSamples(const cv::Mat& mean, const cv::Mat& var, std::vector<do
   }
 }
 
-[[gnu::always_inline]] inline bool sampleDepth(const double* mean, const double* var, int width,
-                                               int height, double pu, double pv, double max_jump,
-                                               DepthSample* out) {
-  const double fu = std::floor(pu), fv = std::floor(pv);
-  if (!(fu >= 0 && fv >= 0 && fu + 1 < width && fv + 1 < height)) return false;
-  const int p = static_cast<int>(fv) * width + static_cast<int>(fu);
-  const double v00 = var[p], v01 = var[p + 1], v10 = var[p + width], v11 = var[p + width + 1];
-  if (!(v00 > 0 && v01 > 0 && v10 > 0 && v11 > 0)) return false;
-  const double m00 = mean[p], m01 = mean[p + 1], m10 = mean[p + width], m11 = mean[p + width + 1];
-  const double lo = std::min(std::min(m00, m01), std::min(m10, m11));
-  const double hi = std::max(std::max(m00, m01), std::max(m10, m11));
+inline bool sampleDepth(const double* mean, const double* var, int width, int height, double pu,
+                        double pv, double max_jump, DepthSample* out) {
+  const double cu = std::floor(pu + 0.5), cv = std::floor(pv + 0.5);
+  if (!(cu >= 1 && cv >= 1 && cu + 1 < width && cv + 1 < height)) return false;
+  const int centre = static_cast<int>(cv) * width + static_cast<int>(cu);
+  double lo = mean[centre], hi = lo, sum = 0, sum_u = 0, sum_v = 0, var_max = 0;
+  for (int dv = -1; dv <= 1; ++dv) {
+    const int row = centre + dv * width;
+    for (int du = -1; du <= 1; ++du) {
+      const double m = mean[row + du], s2 = var[row + du];
+      if (!(s2 > 0)) return false;
+      lo = std::min(lo, m);
+      hi = std::max(hi, m);
+      var_max = std::max(var_max, s2);
+      sum += m;
+      sum_u += du * m;
+      sum_v += dv * m;
+    }
+  }
+  // Least squares on the 3 x 3 grid: the mean, and each slope from the outer columns / rows.
+  out->du = sum_u / 6;
+  out->dv = sum_v / 6;
   if (hi - lo > max_jump * hi) return false;
-  const double a = pu - fu, b = pv - fv;
-  out->value = (1 - b) * ((1 - a) * m00 + a * m01) + b * ((1 - a) * m10 + a * m11);
-  out->du = (1 - b) * (m01 - m00) + b * (m11 - m10);
-  out->dv = (1 - a) * (m10 - m00) + a * (m11 - m01);
-  out->var = std::max(std::max(v00, v01), std::max(v10, v11));
+  out->value = sum / 9 + out->du * (pu - cu) + out->dv * (pv - cv);
+  out->var = var_max;
   return true;
 }
 

@@ -143,6 +143,15 @@ void DenseBundleAdjuster::System::setup(const DenseBaProblem& problem,
       }
     }
   }
+  // A keyframe's measurement is one set of data used by every edge into it and by its own
+  // prior: each depth residual counts it with 1 / (uses) of its information, so that the uses
+  // together count it about once (the edges' residuals share its noise).
+  for (int k = 0; k < K; ++k) {
+    if (measured_var_[k].empty()) continue;
+    int uses = prior_omega_[k].size() > 0 ? 1 : 0;
+    for (const Edge& e : edges_) uses += e.j == k;
+    for (double& var : measured_var_[k]) var *= std::max(uses, 1);
+  }
   cur_ = 0;
   // Keep the solver (and CHOLMOD's symbolic analysis) unless its options changed.
   const ReducedCameraSolverOptions& so = options_.solver;

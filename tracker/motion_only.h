@@ -45,9 +45,9 @@ struct MotionOnlyDepth {
 struct MotionOnlyOptions {
   int max_iterations = 10;                            // linear solves (accepted + rejected steps)
   RobustKernel robust_kernel = RobustKernel::kHuber;  // as DenseBaOptions
-  double robust_scale = 2.4477;           // whitened px, as DenseBaOptions (<= 0: least squares)
-  double min_depth_ratio = 0.2;           // as DenseBaOptions
-  double depth_residual_max_jump = 0.03;  // as DenseBaOptions
+  double robust_scale = 2.4477;          // whitened px, as DenseBaOptions (<= 0: least squares)
+  double min_depth_ratio = 0.2;          // as DenseBaOptions
+  double depth_residual_max_jump = 0.1;  // as DenseBaOptions
   /// Levenberg-Marquardt on the 6x6 system: diag += lambda * max(diag, min_lm_diagonal).
   double initial_lambda = 1e-6;
   double lambda_up = 10.0;

@@ -190,13 +190,14 @@ struct TrackerParams {
   double depth_min_m = 0.1;
   double depth_max_m = 20.0;
   double depth_min_cell_fraction = 0.5;  // valid pixels a cell needs
-  // RGB-D: every BA edge also compares its points' inverse depth in the target keyframe with the
-  // target's sensor depth where they land (DenseBaKeyframe::measured_inv_depth), with the
-  // sensor's sigma times this (0: off).
+  // RGB-D: every BA edge, and each frame's alignment, also compares its points' inverse depth in
+  // the target keyframe (the frame) with the sensor's depth where they land
+  // (DenseBaKeyframe::measured_inv_depth, MotionOnlyDepth), with the sensor's sigma times this
+  // (0: off).
   double depth_residual_sigma_scale = 1.0;
-  // Points landing between grid cells whose inverse depths spread by more than this fraction
-  // skip it (DenseBaOptions::depth_residual_max_jump).
-  double depth_residual_max_jump = 0.03;
+  // Points whose nine nearest grid cells' inverse depths spread by more than this fraction of the
+  // largest skip it (DenseBaOptions::depth_residual_max_jump).
+  double depth_residual_max_jump = 0.1;
 
   // Per-frame alignment.
   int motion_iterations = 10;

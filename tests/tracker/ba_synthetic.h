@@ -53,6 +53,24 @@ inline SyntheticScene makeScene(int K, int width, int height, double f, std::mt1
   return s;
 }
 
+/// Replaces the scene's inverse depths by those of the plane n . X = h (world frame), seen by
+/// every camera: inverse depth is then affine in the pixel, so the grid's bilinear interpolation
+/// (dense BA's depth residual) is exact.
+inline void makePlanar(SyntheticScene* s, const Vec3& n_world, double h) {
+  const CameraModel& cam = s->camera;
+  for (size_t k = 0; k < s->T_world_cam.size(); ++k) {
+    const SE3& T = s->T_world_cam[k];
+    const Vec3 n_cam = T.so3().inverse() * n_world;
+    const double h_cam = h - n_world.dot(T.translation());
+    for (int v = 0; v < cam.height; ++v) {
+      for (int u = 0; u < cam.width; ++u) {
+        const Vec3 ray((u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, 1.0);
+        s->inv_depth[k].at<float>(v, u) = static_cast<float>(n_cam.dot(ray) / h_cam);
+      }
+    }
+  }
+}
+
 /// Edge i -> j with targets from the ground truth plus N(0, sigma^2) noise and weight 1/sigma^2
 /// (weight `w` when sigma = 0). Pixels projecting outside j's grid (by more than `margin`)
 /// get weight 0, as flow would mark them invalid.
