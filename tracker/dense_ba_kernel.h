@@ -125,10 +125,10 @@ inline bool sampleDepth(const double* mean, const double* var, int width, int he
       sum_v += dv * m;
     }
   }
+  if (hi - lo > max_jump * hi) return false;
   // Least squares on the 3 x 3 grid: the mean, and each slope from the outer columns / rows.
   out->du = sum_u / 6;
   out->dv = sum_v / 6;
-  if (hi - lo > max_jump * hi) return false;
   out->value = sum / 9 + out->du * (pu - cu) + out->dv * (pv - cv);
   out->var = var_max;
   return true;

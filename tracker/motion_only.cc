@@ -58,6 +58,20 @@ double MotionOnlyAligner::linearize(const CameraModel& camera,
                                     const SE3& T_world_frame, Mat6* H, Vec6* g, int* num_residuals,
                                     double* mean_error_px,
                                     const MotionOnlyDepth& frame_depth) const {
+  std::vector<double> measured, measured_var;
+  if (!frame_depth.inv_depth.empty()) {
+    dense_ba::depthSamples(frame_depth.inv_depth, frame_depth.inv_depth_var, &measured,
+                           &measured_var);
+  }
+  return linearizeSamples(camera, keyframes, edges, T_world_frame, measured, measured_var, H, g,
+                          num_residuals, mean_error_px);
+}
+
+double MotionOnlyAligner::linearizeSamples(
+    const CameraModel& camera, const std::vector<DenseBaKeyframe>& keyframes,
+    const std::vector<MotionOnlyEdge>& edges, const SE3& T_world_frame,
+    const std::vector<double>& measured, const std::vector<double>& measured_var, Mat6* H, Vec6* g,
+    int* num_residuals, double* mean_error_px) const {
   const dense_ba::Pinhole<double> cam{camera.fx, camera.fy, camera.cx, camera.cy};
   const SE3 T_frame_world = T_world_frame.inverse();
   Mat6 A = Mat6::Zero();
@@ -67,11 +81,6 @@ double MotionOnlyAligner::linearize(const CameraModel& camera,
   Mat26 J;
   Eigen::Vector2d Jd;
   const bool jac = H || g;
-  std::vector<double> measured, measured_var;
-  if (!frame_depth.inv_depth.empty()) {
-    dense_ba::depthSamples(frame_depth.inv_depth, frame_depth.inv_depth_var, &measured,
-                           &measured_var);
-  }
   for (const MotionOnlyEdge& e : edges) {
     const DenseBaKeyframe& kf = keyframes[e.keyframe];
     const SE3 T_f_k = T_frame_world * kf.T_world_cam;
@@ -148,13 +157,18 @@ MotionOnlyResult MotionOnlyAligner::align(const CameraModel& camera,
                                           const SE3& T_world_frame_init,
                                           const MotionOnlyDepth& frame_depth) const {
   validate(camera, keyframes, edges, frame_depth);
+  std::vector<double> measured, measured_var;
+  if (!frame_depth.inv_depth.empty()) {
+    dense_ba::depthSamples(frame_depth.inv_depth, frame_depth.inv_depth_var, &measured,
+                           &measured_var);
+  }
   MotionOnlyResult result;
   result.T_world_frame = T_world_frame_init;
   Mat6 H;
   Vec6 g;
   int n = 0;
-  double cost =
-      linearize(camera, keyframes, edges, result.T_world_frame, &H, &g, &n, nullptr, frame_depth);
+  double cost = linearizeSamples(camera, keyframes, edges, result.T_world_frame, measured,
+                                 measured_var, &H, &g, &n);
   result.initial_cost = cost;
   if (n < options_.min_residuals) {
     result.error = "motion-only: " + std::to_string(n) + " valid pixels, need " +
@@ -178,8 +192,8 @@ MotionOnlyResult MotionOnlyAligner::align(const CameraModel& camera,
     Mat6 H_new;
     Vec6 g_new;
     int n_new = 0;
-    const double cost_new =
-        linearize(camera, keyframes, edges, T_new, &H_new, &g_new, &n_new, nullptr, frame_depth);
+    const double cost_new = linearizeSamples(camera, keyframes, edges, T_new, measured,
+                                             measured_var, &H_new, &g_new, &n_new);
     if (cost_new < cost && n_new >= options_.min_residuals) {
       const double decrease = (cost - cost_new) / std::max(cost, 1e-300);
       result.T_world_frame = T_new;
@@ -200,8 +214,8 @@ MotionOnlyResult MotionOnlyAligner::align(const CameraModel& camera,
     }
   }
   result.final_cost = cost;
-  linearize(camera, keyframes, edges, result.T_world_frame, nullptr, nullptr, &result.num_residuals,
-            &result.mean_reprojection_error_px, frame_depth);
+  linearizeSamples(camera, keyframes, edges, result.T_world_frame, measured, measured_var, nullptr,
+                   nullptr, &result.num_residuals, &result.mean_reprojection_error_px);
   const Eigen::LLT<Mat6> llt(H);
   if (llt.info() != Eigen::Success) {
     result.error = "motion-only: Hessian not positive definite (degenerate geometry)";

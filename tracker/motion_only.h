@@ -90,6 +90,14 @@ class MotionOnlyAligner {
                    const MotionOnlyDepth& frame_depth = {}) const;
 
  private:
+  // linearize() with the frame's measured depth as dense_ba::depthSamples gives it (empty: none),
+  // converted once per align().
+  double linearizeSamples(const CameraModel& camera, const std::vector<DenseBaKeyframe>& keyframes,
+                          const std::vector<MotionOnlyEdge>& edges, const SE3& T_world_frame,
+                          const std::vector<double>& measured,
+                          const std::vector<double>& measured_var, Mat6* H, Vec6* g,
+                          int* num_residuals = nullptr, double* mean_error_px = nullptr) const;
+
   MotionOnlyOptions options_;
 };
 
