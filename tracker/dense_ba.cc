@@ -111,7 +111,7 @@ void validateDenseBaProblem(const DenseBaProblem& problem) {
                                   ": target keyframe out of range or equal to the source");
     }
     checkImage(e.target, CV_32FC2, cam, name + " target");
-    checkImage(e.weight, CV_32FC2, cam, name + " weight");
+    checkImage(e.weight, kFlowWeightType, cam, name + " weight");
   }
 }
 

@@ -24,7 +24,8 @@
 //  - Pixel coordinates: (u, v) = (column, row) of the BA grid, pixel centres at integers.
 //  - Residual of edge (i, j) at grid pixel p of keyframe i with inverse depth d:
 //      r = target(p) - Pi(T_j_world T_world_i Pi^-1(p, d))            (pixels, grid of j)
-//    whitened by weight(p) = (1/sigma_u^2, 1/sigma_v^2) and passed through a Huber kernel on
+//    whitened by weight(p) = W, the 2 x 2 information matrix of target(p) (flow confidence,
+//    with the aperture problem's direction), and passed through a robust kernel on
 //    s = sqrt(r^T W r). Cost = sum of rho(s^2) (rho(s^2) = s^2 for inliers, no factor 1/2)
 //    + sum over priors of (d - mu)^2 / var
 //    + per keyframe with a level prior, (mean over its prior pixels of (mu - d))^2 / level_var
@@ -41,6 +42,8 @@
 //    complement H_T = C - E P^-1 E^T (ReducedCameraSolver), then dd = P^-1 (w - E^T dxi).
 #pragma once
 
+#include <algorithm>
+#include <cmath>
 #include <memory>
 #include <optional>
 #include <string>
@@ -55,6 +58,26 @@
 namespace radslam {
 
 using Mat26 = Eigen::Matrix<double, 2, 6>;
+
+/// Pixel type of flow weight images: the information matrix W = Sigma^-1 (1/px^2) of a target
+/// (u, v), as (W_uu, W_uv, W_vv). An edge along u constrains only v: W then has a large W_vv,
+/// and at any angle one large eigenvalue across it.
+constexpr int kFlowWeightType = CV_32FC3;
+
+/// The information matrix of a weight pixel, or false when it carries none: non-finite
+/// entries, a negative diagonal or a zero one on both axes. The cross term is clamped so that
+/// W stays positive semi-definite.
+inline bool flowInformation(const cv::Vec3f& w, double* uu, double* uv, double* vv) {
+  if (!(std::isfinite(w[0]) && std::isfinite(w[1]) && std::isfinite(w[2]) && w[0] >= 0 &&
+        w[2] >= 0 && (w[0] > 0 || w[2] > 0))) {
+    return false;
+  }
+  *uu = w[0];
+  *vv = w[2];
+  const double bound = std::sqrt(*uu * *vv);
+  *uv = std::clamp(static_cast<double>(w[1]), -bound, bound);
+  return true;
+}
 
 struct DenseBaKeyframe {
   SE3 T_world_cam;
@@ -90,8 +113,8 @@ struct DenseBaEdge {
   /// CV_32FC2, camera grid size: for each grid pixel p of keyframe i, its location (u, v) in the
   /// target camera's grid (pixels). Non-finite entries are ignored.
   cv::Mat target;
-  /// CV_32FC2, camera grid size: inverse variances (1/px^2) of target u and v (flow confidence).
-  /// A pixel counts only when at least one component is > 0; non-finite or <= 0 components are 0.
+  /// kFlowWeightType, camera grid size: the information matrix of each target (flow
+  /// confidence); pixels for which flowInformation() is false are not used.
   cv::Mat weight;
   /// Fixed-relative-pose edge (stereo): the target camera is rigidly attached to keyframe i at
   /// T_i_other (e.g. T_left_right, baseline along +x) with the same intrinsics (rectified). Its

@@ -128,18 +128,23 @@ void DenseBundleAdjuster::System::setup(const DenseBaProblem& problem,
     e.tu.setZero(padded);
     e.tv.setZero(padded);
     e.wu.setZero(padded);
+    e.wuv.setZero(padded);
     e.wv.setZero(padded);
     for (int v = 0; v < height_; ++v) {
       const cv::Vec2f* target = in.target.ptr<cv::Vec2f>(v);
-      const cv::Vec2f* weight = in.weight.ptr<cv::Vec2f>(v);
+      const cv::Vec3f* weight = in.weight.ptr<cv::Vec3f>(v);
       for (int u = 0; u < width_; ++u) {
         const int p = v * padded_width_ + u;
-        const bool finite = std::isfinite(target[u][0]) && std::isfinite(target[u][1]);
-        const double wu = weight[u][0], wv = weight[u][1];
-        e.wu(p) = finite && wu > 0 && wu < kInf ? wu : 0.0;
-        e.wv(p) = finite && wv > 0 && wv < kInf ? wv : 0.0;
-        e.tu(p) = finite ? target[u][0] : 0.0;
-        e.tv(p) = finite ? target[u][1] : 0.0;
+        double uu, uv, vv;
+        if (!std::isfinite(target[u][0]) || !std::isfinite(target[u][1]) ||
+            !flowInformation(weight[u], &uu, &uv, &vv)) {
+          continue;
+        }
+        e.wu(p) = uu;
+        e.wuv(p) = uv;
+        e.wv(p) = vv;
+        e.tu(p) = target[u][0];
+        e.tv(p) = target[u][1];
       }
     }
   }
@@ -242,18 +247,19 @@ void DenseBundleAdjuster::System::rowPass(const Edge& e, EdgeContext* x, int v, 
     const Block X = R(0, 0) * xs + cX + t(0) * d;
     const Block Y = R(1, 0) * xs + cY + t(1) * d;
     const Block Z = R(2, 0) * xs + cZ + t(2) * d;
-    Block iz, wu, wv;
+    Block iz, wu, wuv, wv;
     for (int q = 0; q < kBlock; ++q) {
       const double a = e.wu(off + q), b = e.wv(off + q);
       const bool used = Z(q) > min_ratio && (a > 0 || b > 0);
       iz(q) = used ? 1.0 / Z(q) : 0.0;
       wu(q) = used ? a : 0.0;
+      wuv(q) = used ? e.wuv(off + q) : 0.0;
       wv(q) = used ? b : 0.0;
     }
     const Block xn = X * iz, yn = Y * iz;
     const Block ru = CMap(e.tu.data() + off) - (fx * xn + cx);
     const Block rv = CMap(e.tv.data() + off) - (fy * yn + cy);
-    const Block s2 = wu * ru.square() + wv * rv.square();
+    const Block s2 = wu * ru.square() + 2.0 * wuv * ru * rv + wv * rv.square();
     Block irls;
     for (int q = 0; q < kBlock; ++q) {
       if (iz(q) == 0) {
@@ -267,11 +273,14 @@ void DenseBundleAdjuster::System::rowPass(const Edge& e, EdgeContext* x, int v, 
     if constexpr (kLinearize) {
       // r = target - pixel, so dr/dxi = -J, dr/dd = -Jd: the signs cancel in J^T W J, and
       // J^T W r is kept with the pixel Jacobian's sign (see dense_ba_system.h).
-      const Block au = irls * wu, av = irls * wv;
+      // W times the residual and times the depth Jacobian, with the IRLS weight.
+      const Block au = irls * wu, auv = irls * wuv, av = irls * wv;
       const Block Jd0 = fx * iz * (t(0) - xn * t(2));
       const Block Jd1 = fy * iz * (t(1) - yn * t(2));
-      Eigen::Map<Block>(P_row_.data() + u0) += au * Jd0.square() + av * Jd1.square();
-      Eigen::Map<Block>(w_row_.data() + u0) += au * Jd0 * ru + av * Jd1 * rv;
+      const Block wr0 = au * ru + auv * rv, wr1 = auv * ru + av * rv;
+      const Block wd0 = au * Jd0 + auv * Jd1, wd1 = auv * Jd0 + av * Jd1;
+      Eigen::Map<Block>(P_row_.data() + u0) += wd0 * Jd0 + wd1 * Jd1;
+      Eigen::Map<Block>(w_row_.data() + u0) += wd0 * ru + wd1 * rv;
       if (x->B) {
         // J_xi rows (dense_ba::reproject); j0[1] = j1[0] = 0.
         const Block s = d * iz;
@@ -279,26 +288,33 @@ void DenseBundleAdjuster::System::rowPass(const Edge& e, EdgeContext* x, int v, 
             fx * s, Block::Zero(), -fx * s * xn, -fx * xn * yn, fx * (1.0 + xn.square()), -fx * yn};
         const Block j1[6] = {Block::Zero(), fy * s, -fy * s * yn, -fy * (1.0 + yn.square()),
                              fy * xn * yn,  fy * xn};
+        // Rows of W J: wj0 = W_uu j0 + W_uv j1, wj1 = W_uv j0 + W_vv j1.
         Block wj0[6], wj1[6];
-        for (int a = 0; a < 6; ++a) {
-          if (a != 1) wj0[a] = au * j0[a];
-          if (a != 0) wj1[a] = av * j1[a];
+        wj0[0] = au * j0[0];
+        wj1[0] = auv * j0[0];
+        wj0[1] = auv * j1[1];
+        wj1[1] = av * j1[1];
+        for (int a = 2; a < 6; ++a) {
+          wj0[a] = au * j0[a] + auv * j1[a];
+          wj1[a] = auv * j0[a] + av * j1[a];
         }
         // Lower triangle of A += J^T W J without the products of the zero entries.
         Mat6& A = x->A;
         A(0, 0) += (j0[0] * wj0[0]).sum();
+        A(1, 0) += (j1[1] * wj1[0]).sum();
         A(1, 1) += (j1[1] * wj1[1]).sum();
         for (int a = 2; a < 6; ++a) {
-          A(a, 0) += (j0[a] * wj0[0]).sum();
-          A(a, 1) += (j1[a] * wj1[1]).sum();
+          A(a, 0) += (j0[a] * wj0[0] + j1[a] * wj1[0]).sum();
+          A(a, 1) += (j0[a] * wj0[1] + j1[a] * wj1[1]).sum();
           for (int c = 2; c <= a; ++c) A(a, c) += (j0[a] * wj0[c] + j1[a] * wj1[c]).sum();
         }
-        x->g(0) += (wj0[0] * ru).sum();
-        x->g(1) += (wj1[1] * rv).sum();
-        for (int a = 2; a < 6; ++a) x->g(a) += (wj0[a] * ru + wj1[a] * rv).sum();
-        const Block b0 = wj0[0] * Jd0, b1 = wj1[1] * Jd1, b2 = wj0[2] * Jd0 + wj1[2] * Jd1,
-                    b3 = wj0[3] * Jd0 + wj1[3] * Jd1, b4 = wj0[4] * Jd0 + wj1[4] * Jd1,
-                    b5 = wj0[5] * Jd0 + wj1[5] * Jd1;
+        x->g(0) += (j0[0] * wr0).sum();
+        x->g(1) += (j1[1] * wr1).sum();
+        for (int a = 2; a < 6; ++a) x->g(a) += (j0[a] * wr0 + j1[a] * wr1).sum();
+        // E entries J_xi^T W J_d.
+        const Block b0 = j0[0] * wd0, b1 = j1[1] * wd1, b2 = j0[2] * wd0 + j1[2] * wd1,
+                    b3 = j0[3] * wd0 + j1[3] * wd1, b4 = j0[4] * wd0 + j1[4] * wd1,
+                    b5 = j0[5] * wd0 + j1[5] * wd1;
         const int count = std::min(kBlock, width_ - u0);
         double* col = x->B + static_cast<size_t>(v * width_ + u0) * ldb;
         for (int q = 0; q < count; ++q, col += ldb) {

@@ -75,9 +75,10 @@ class DenseBundleAdjuster::System {
   struct Edge {
     int i = 0, j = -1;  // j = -1: fixed-relative (stereo) edge
     SE3 T_j_i_fixed;    // stereo only
-    // Planar copies of target (u, v) and weight with invalid entries (non-finite target,
-    // weight not in (0, inf)) set to target 0, weight 0; rows padded to padded_width_ pixels.
-    Eigen::ArrayXd tu, tv, wu, wv;
+    // Planar copies of target (u, v) and of the information matrix (W_uu, W_uv, W_vv) with
+    // invalid entries (non-finite target, no information) set to 0; rows padded to
+    // padded_width_ pixels.
+    Eigen::ArrayXd tu, tv, wu, wuv, wv;
     int slot = -1;  // block row in B_i (non-stereo)
   };
   struct EdgeLin {

@@ -1,5 +1,7 @@
 #include "tracker/frontend.h"
 
+#include "tracker/dense_ba.h"
+
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
@@ -198,15 +200,15 @@ namespace {
 
 FlowMotion flowMotion(const cv::Mat& target, const cv::Mat& weight, const CameraModel* grid,
                       const Mat3& R_b_a) {
-  CV_Assert(target.type() == CV_32FC2 && weight.type() == CV_32FC2 &&
+  CV_Assert(target.type() == CV_32FC2 && weight.type() == kFlowWeightType &&
             target.size() == weight.size());
   double sum = 0, sum_rotation = 0, sum_parallax = 0;
   int n = 0;
   for (int v = 0; v < target.rows; ++v) {
     const cv::Vec2f* t = target.ptr<cv::Vec2f>(v);
-    const cv::Vec2f* w = weight.ptr<cv::Vec2f>(v);
+    const cv::Vec3f* w = weight.ptr<cv::Vec3f>(v);
     for (int u = 0; u < target.cols; ++u) {
-      if (!(w[u][0] > 0 || w[u][1] > 0)) continue;
+      if (!(w[u][0] > 0 || w[u][2] > 0)) continue;
       const double du = t[u][0] - u, dv = t[u][1] - v;
       if (!std::isfinite(du) || !std::isfinite(dv)) continue;
       sum += std::sqrt(du * du + dv * dv);

@@ -1,5 +1,7 @@
 #include "tracker/frontend_depth.h"
 
+#include "tracker/dense_ba.h"
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -116,12 +118,12 @@ cv::Mat semiGlobalStereoDepth(const cv::Mat& left, const cv::Mat& right, double 
 
 cv::Mat stereoInverseDepth(const cv::Mat& target, const cv::Mat& weight, double fx_grid,
                            double baseline_m, double min_disparity_px) {
-  CV_Assert(target.type() == CV_32FC2 && weight.type() == CV_32FC2 &&
+  CV_Assert(target.type() == CV_32FC2 && weight.type() == kFlowWeightType &&
             target.size() == weight.size() && fx_grid > 0 && baseline_m > 0);
   cv::Mat out(target.size(), CV_32FC1, cv::Scalar(kNaN));
   for (int v = 0; v < target.rows; ++v) {
     const cv::Vec2f* t = target.ptr<cv::Vec2f>(v);
-    const cv::Vec2f* w = weight.ptr<cv::Vec2f>(v);
+    const cv::Vec3f* w = weight.ptr<cv::Vec3f>(v);
     float* d = out.ptr<float>(v);
     for (int u = 0; u < target.cols; ++u) {
       if (!(w[u][0] > 0)) continue;
@@ -136,7 +138,7 @@ cv::Mat stereoInverseDepth(const cv::Mat& target, const cv::Mat& weight, double 
 cv::Mat splatInverseDepth(const cv::Mat& inv_depth_a, const cv::Mat& target, const cv::Mat& weight,
                           const SE3& T_b_a, const CameraModel& grid) {
   CV_Assert(inv_depth_a.type() == CV_32FC1 && target.type() == CV_32FC2 &&
-            weight.type() == CV_32FC2 && inv_depth_a.size() == target.size() &&
+            weight.type() == kFlowWeightType && inv_depth_a.size() == target.size() &&
             target.size() == weight.size());
   cv::Mat out(inv_depth_a.size(), CV_32FC1, cv::Scalar(kNaN));
   const Mat3 R = T_b_a.rotation();
@@ -144,7 +146,7 @@ cv::Mat splatInverseDepth(const cv::Mat& inv_depth_a, const cv::Mat& target, con
   for (int v = 0; v < target.rows; ++v) {
     const float* da = inv_depth_a.ptr<float>(v);
     const cv::Vec2f* tg = target.ptr<cv::Vec2f>(v);
-    const cv::Vec2f* w = weight.ptr<cv::Vec2f>(v);
+    const cv::Vec3f* w = weight.ptr<cv::Vec3f>(v);
     const double y = (v - grid.cy) / grid.fy;
     for (int u = 0; u < target.cols; ++u) {
       if (!(w[u][0] > 0) || !(da[u] > 0) || !std::isfinite(da[u])) continue;

@@ -1,5 +1,6 @@
 #include "tracker/frontend_flow.h"
 
+#include "tracker/dense_ba.h"
 #include "tracker/frontend_refine.h"
 
 #include <algorithm>
@@ -156,11 +157,16 @@ cv::Mat predictedFlow(const cv::Mat& grid_targets, const GridGeometry& geometry)
   return out;
 }
 
-cv::Mat cellStructureTensor(const cv::Mat& gradients, int cell) {
+cv::Mat cellStructureTensor(const cv::Mat& gradients, int cell, const cv::Mat& moving) {
   CV_Assert(gradients.type() == CV_32FC2 && gradients.cols % cell == 0 &&
             gradients.rows % cell == 0);
+  CV_Assert(moving.empty() || (moving.type() == CV_8UC1 && moving.size() == gradients.size()));
   cv::Mat g[2];
   cv::split(gradients, g);
+  if (!moving.empty()) {
+    g[0].setTo(0, moving);
+    g[1].setTo(0, moving);
+  }
   // Cell means of the three products, then one small merge (cheaper than a 3-channel resize).
   const cv::Size grid(gradients.cols / cell, gradients.rows / cell);
   cv::Mat xx, xy, yy, out;
@@ -200,7 +206,7 @@ Correspondences flowToCorrespondences(const cv::Mat& grey_a, const cv::Mat& grey
   // whose match lands inside b. The mean flow uses every pixel.
   const int n_cells = grid.area();
   std::vector<float> n_in(n_cells, 0), n_all(n_cells, 0), sum_r(n_cells, 0), sum_r2(n_cells, 0),
-      sum_fb2(n_cells, 0);
+      sum_fb_uu(n_cells, 0), sum_fb_uv(n_cells, 0), sum_fb_vv(n_cells, 0);
   const float x_hi = work.width - 0.5f, y_hi = work.height - 0.5f;
   const int wmax = work.width - 1, hmax = work.height - 1;
   const bool with_fb = !flow_ba.empty();
@@ -240,7 +246,9 @@ Correspondences flowToCorrespondences(const cv::Mat& grey_a, const cv::Mat& grey
             f[x][0] + w00 * f0[0][0] + w01 * f0[1][0] + w10 * f1[0][0] + w11 * f1[1][0];
         const float ev =
             f[x][1] + w00 * f0[0][1] + w01 * f0[1][1] + w10 * f1[0][1] + w11 * f1[1][1];
-        sum_fb2[k] += eu * eu + ev * ev;
+        sum_fb_uu[k] += eu * eu;
+        sum_fb_uv[k] += eu * ev;
+        sum_fb_vv[k] += ev * ev;
       }
     }
   }
@@ -260,18 +268,18 @@ Correspondences flowToCorrespondences(const cv::Mat& grey_a, const cv::Mat& grey
 
   Correspondences out;
   out.target.create(grid, CV_32FC2);
-  out.weight.create(grid, CV_32FC2);
+  out.weight.create(grid, kFlowWeightType);
   const float nan = std::numeric_limits<float>::quiet_NaN();
   const double sigma0_sq = options.sigma0_px * options.sigma0_px;
   std::vector<float> fb_valid;
   int valid = 0;
   for (int v = 0; v < grid.height; ++v) {
     cv::Vec2f* t = out.target.ptr<cv::Vec2f>(v);
-    cv::Vec2f* w = out.weight.ptr<cv::Vec2f>(v);
+    cv::Vec3f* w = out.weight.ptr<cv::Vec3f>(v);
     const cv::Vec2f* mf = m_flow.ptr<cv::Vec2f>(v);
     const float* sf = static_fraction.empty() ? nullptr : static_fraction.ptr<float>(v);
     for (int u = 0; u < grid.width; ++u) {
-      w[u] = cv::Vec2f(0, 0);
+      w[u] = cv::Vec3f(0, 0, 0);
       const int k = v * grid.width + u;
       // With a mask, a cell needs most of its pixels static; its flow is theirs.
       const double static_share = sf ? sf[u] : 1.0;
@@ -291,19 +299,29 @@ Correspondences flowToCorrespondences(const cv::Mat& grey_a, const cv::Mat& grey
       }
       const double mean_r = sum_r[k] / n_in[k];
       const double e_ph = std::sqrt(std::max(0.0, sum_r2[k] / n_in[k] - mean_r * mean_r));
-      const double e_fb = std::sqrt(std::max(0.0, static_cast<double>(sum_fb2[k]) / n_in[k])) / c;
+      // The forward-backward error's second moments (grid px^2): a flow that slides along a
+      // stripe errs along it only.
+      const double fb_uu = sum_fb_uu[k] / (n_in[k] * c * c),
+                   fb_uv = sum_fb_uv[k] / (n_in[k] * c * c),
+                   fb_vv = sum_fb_vv[k] / (n_in[k] * c * c);
+      const double e_fb = std::sqrt(std::max(0.0, fb_uu + fb_vv));
       if (e_fb > options.fb_max_px || e_ph > options.photo_max) continue;
-      // Aperture: the flow covariance of a Lucas-Kanade window is proportional to J^-1; its
-      // diagonal (J regularised by grad_floor I) is each component's own uncertainty, so flow
-      // along a stripe gets no weight while flow across it keeps its full weight.
+      // Aperture: the flow covariance of a Lucas-Kanade window is proportional to J^-1 (J
+      // regularised by grad_floor I), so flow along a stripe, at any angle, gets no weight
+      // while flow across it keeps its full weight. Sigma = common I + grad_gain J^-1.
       const cv::Vec3f J = structure_a.at<cv::Vec3f>(v, u);
       const double jxx = J[0] + options.grad_floor, jxy = J[1], jyy = J[2] + options.grad_floor;
       const double det = jxx * jyy - jxy * jxy;
       const double ph = e_ph / options.photo_scale;
-      const double common = sigma0_sq + options.fb_gain * e_fb * e_fb + ph * ph;
-      const double var_u = common + options.grad_gain * jyy / det;
-      const double var_v = common + options.grad_gain * jxx / det;
-      w[u] = cv::Vec2f(static_cast<float>(1.0 / var_u), static_cast<float>(1.0 / var_v));
+      const double common = sigma0_sq + ph * ph;
+      // 2 fb_gain M: an isotropic error adds fb_gain e_fb^2 to each component's variance.
+      const double fb = 2 * options.fb_gain;
+      const double s_uu = common + fb * fb_uu + options.grad_gain * jyy / det;
+      const double s_uv = fb * fb_uv - options.grad_gain * jxy / det;
+      const double s_vv = common + fb * fb_vv + options.grad_gain * jxx / det;
+      const double s_det = s_uu * s_vv - s_uv * s_uv;
+      w[u] = cv::Vec3f(static_cast<float>(s_vv / s_det), static_cast<float>(-s_uv / s_det),
+                       static_cast<float>(s_uu / s_det));
       fb_valid.push_back(static_cast<float>(e_fb));
       ++valid;
     }

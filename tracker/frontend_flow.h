@@ -3,23 +3,24 @@
 // confidence (the edge weight). DROID-SLAM's ConvGRU replaced by classical flow (DESIGN.md 3).
 //
 /// Confidence model. For grid pixel p (a c x c cell of working pixels, c = 8) the flow target
-/// is the mean flow over the cell. The variance of its component k (u or v), in grid px^2, is
+/// is the mean flow over the cell. Its 2 x 2 covariance, in grid px^2, is Sigma = s^2 I +
+/// grad_gain J^-1 with
 ///
-///   sigma_k^2 = sigma0^2                  noise floor of a well-textured, consistent cell
+///   s^2       = sigma0^2                  noise floor of a well-textured, consistent cell
 ///             + fb_gain e_fb^2            e_fb: RMS over the cell of the forward-backward error
 ///                                         |f_ab(x) + f_ba(x + f_ab(x))|, grid px
 ///             + (e_ph / photo_scale)^2    e_ph: RMS over the cell of the photometric residual
 ///                                         I_a(x) - I_b(x + f_ab(x)) minus its cell mean (robust
 ///                                         to exposure changes), grey levels
-///             + grad_gain [J^-1]_kk       J = mean(g g^T) + grad_floor I, the cell's structure
-///                                         tensor, (grey/working px)^2: Lucas-Kanade's flow
-///                                         covariance is proportional to J^-1, so flow along a
-///                                         stripe (aperture problem) gets no weight and flow
-///                                         across it keeps its weight
+///
+/// and J = mean(g g^T) + grad_floor I the cell's structure tensor, (grey/working px)^2:
+/// Lucas-Kanade's flow covariance is proportional to J^-1, so flow along a stripe (aperture
+/// problem), at any angle, gets no weight and flow across it keeps its weight.
 ///
 /// The RMS terms use every other pixel of every other row of the cell (16 of 64 for c = 8: a
 /// quarter of the cost and plenty for a cell statistic); the target uses all pixels. The
-/// weight is (1/sigma_u^2, 1/sigma_v^2); it is 0 (a failure) when e_fb > fb_max_px,
+/// weight is the information matrix Sigma^-1 (kFlowWeightType, tracker/dense_ba.h); it is 0
+/// (a failure) when e_fb > fb_max_px,
 /// e_ph > photo_max, fewer than half of the cell's pixels land inside b, the target leaves b
 /// or the flow is not finite. The terms add as independent error sources; the constants and
 /// their calibration are documented at FlowOptions.
@@ -122,7 +123,7 @@ cv::Mat predictedFlow(const cv::Mat& grid_targets, const GridGeometry& geometry)
 /// Per-edge result: what DenseBaEdge needs, plus figures.
 struct Correspondences {
   cv::Mat target;             // CV_32FC2 grid size: location in b's grid (grid px)
-  cv::Mat weight;             // CV_32FC2 grid size: inverse variance (1/grid px^2) of u and v
+  cv::Mat weight;             // kFlowWeightType grid size: Sigma^-1 (1/grid px^2) of (u, v)
   double valid_fraction = 0;  // pixels with weight > 0
   double median_fb_px = 0;    // median over valid cells of e_fb (grid px)
 };
@@ -135,9 +136,11 @@ Correspondences flowToCorrespondences(const cv::Mat& grey_a, const cv::Mat& grey
                                       const GridGeometry& geometry, const FlowOptions& options);
 
 /// Structure tensor J = mean(g g^T) of each grid cell, (grey/working px)^2, as CV_32FC3
-/// (Jxx, Jxy, Jyy) of grid size, from imageGradients() (tracker/frontend_refine.h). Depends on
-/// the image only (cache it per keyframe).
-cv::Mat cellStructureTensor(const cv::Mat& gradients, int cell);
+/// (Jxx, Jxy, Jyy) of grid size, from imageGradients() (tracker/frontend_refine.h). Pixels of
+/// `moving` (CV_8UC1 working size, non-zero = moving; empty = none) add nothing: a cell's flow
+/// is its static pixels', and a moving object's texture says nothing of it. Depends on the
+/// image and the mask only (cache it per keyframe).
+cv::Mat cellStructureTensor(const cv::Mat& gradients, int cell, const cv::Mat& moving = {});
 
 /// As flowToCorrespondences with the structure tensor of a precomputed, and optional masks of
 /// moving objects (CV_8UC1 working size, non-zero = moving; empty = none) that keep them out

@@ -1,5 +1,7 @@
 #include "tracker/frontend_refine.h"
 
+#include "tracker/dense_ba.h"
+
 #include <cmath>
 #include <vector>
 
@@ -102,7 +104,7 @@ int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::M
             grey_a.size() == grey_b.size() && gradients_a.type() == CV_32FC2 &&
             gradients_a.size() == grey_a.size() && cell >= 1);
   CV_Assert(target && target->type() == CV_32FC2 && target->cols * cell == grey_a.cols &&
-            target->rows * cell == grey_a.rows && weight && weight->type() == CV_32FC2 &&
+            target->rows * cell == grey_a.rows && weight && weight->type() == kFlowWeightType &&
             weight->size() == target->size());
   CV_Assert(moving_a.empty() || (moving_a.type() == CV_8UC1 && moving_a.size() == grey_a.size()));
   const int W = grey_a.cols, H = grey_a.rows;
@@ -129,9 +131,9 @@ int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::M
   int refined = 0;
   for (int v = 0; v < target->rows; ++v) {
     cv::Vec2f* t = target->ptr<cv::Vec2f>(v);
-    cv::Vec2f* w = weight->ptr<cv::Vec2f>(v);
+    cv::Vec3f* w = weight->ptr<cv::Vec3f>(v);
     for (int u = 0; u < target->cols; ++u) {
-      if (!(w[u][0] > 0 || w[u][1] > 0) || !std::isfinite(t[u][0]) || !std::isfinite(t[u][1])) {
+      if (!(w[u][0] > 0 || w[u][2] > 0) || !std::isfinite(t[u][0]) || !std::isfinite(t[u][1])) {
         continue;
       }
       // The cell's pixels, gradients and the constant Hessian of (dx, dy, offset).
@@ -139,7 +141,7 @@ int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::M
       int k = 0;
       const int xa = u * cell - m, ya = v * cell - m;  // window corner in a
       if (xa < 0 || ya < 0 || xa + side > W || ya + side > H) {
-        if (options.reject_failures) w[u] = cv::Vec2f(0, 0);
+        if (options.reject_failures) w[u] = cv::Vec3f(0, 0, 0);
         continue;
       }
       for (int j = 0; j < side; ++j) {
@@ -168,7 +170,7 @@ int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::M
         Hm(2, 2) = 1;
       }
       if (!(Hm.topLeftCorner<2, 2>().determinant() > options.min_det)) {
-        if (options.reject_failures) w[u] = cv::Vec2f(0, 0);
+        if (options.reject_failures) w[u] = cv::Vec3f(0, 0, 0);
         continue;
       }
       const Eigen::Matrix3d Hinv = Hm.inverse();
@@ -207,7 +209,7 @@ int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::M
       }
       const float mx = dx - dx0, my = dy - dy0;
       if (!ok || !std::isfinite(dx) || !std::isfinite(dy) || mx * mx + my * my > max_shift2) {
-        if (options.reject_failures) w[u] = cv::Vec2f(0, 0);
+        if (options.reject_failures) w[u] = cv::Vec3f(0, 0, 0);
         continue;
       }
       t[u] = cv::Vec2f(u + dx / cell, v + dy / cell);

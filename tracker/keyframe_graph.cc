@@ -410,7 +410,7 @@ void KeyframeGraph::load(BinaryReader* in) {
       r.fail("edge with a keyframe id out of range");
     const cv::Mat& grid = keyframes[e.i].ba.inv_depth;
     if (e.target.size != grid.size || e.weight.size != grid.size || e.target.type() != CV_32FC2 ||
-        e.weight.type() != CV_32FC2)
+        e.weight.type() != kFlowWeightType)
       r.fail("edge " + std::to_string(e.i) + "-" + std::to_string(e.j) + ": bad grid images");
   }
   keyframes_ = std::move(keyframes);

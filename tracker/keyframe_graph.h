@@ -75,7 +75,7 @@ auto keyframeImages(K& k) {
       {"gradients", &k.gradients, false, {CV_32FC2, CV_32FC2}},
       {"right image", &k.right_grey, false, {CV_8UC1, CV_8UC1}},
       {"stereo targets", &k.stereo_target, true, {CV_32FC2, CV_32FC2}},
-      {"stereo weights", &k.stereo_weight, true, {CV_32FC2, CV_32FC2}},
+      {"stereo weights", &k.stereo_weight, true, {kFlowWeightType, kFlowWeightType}},
       {"moving mask", &k.moving, false, {CV_8UC1, CV_8UC1}},
       {"depth", &k.depth, false, {CV_32FC1, CV_32FC1}},
       {"inverse depth", &k.ba.inv_depth, true, {CV_32FC1, CV_32FC1}},
@@ -95,7 +95,7 @@ struct GraphEdge {
   int i = 0;
   int j = 0;
   cv::Mat target;  // CV_32FC2 grid: location in j's grid
-  cv::Mat weight;  // CV_32FC2 grid: inverse variances (1/grid px^2)
+  cv::Mat weight;  // kFlowWeightType grid: information matrices (1/grid px^2)
   std::optional<SE3> T_i_other;
   /// Loop edge: the id of its endpoint outside the window (the anchor), -1 otherwise.
   int anchor = -1;

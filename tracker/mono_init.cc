@@ -1,5 +1,7 @@
 #include "tracker/mono_init.h"
 
+#include "tracker/dense_ba.h"
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -12,7 +14,7 @@ namespace radslam {
 
 TwoViewResult initializeTwoView(const CameraModel& grid, const cv::Mat& target,
                                 const cv::Mat& weight, const TwoViewOptions& options) {
-  CV_Assert(target.type() == CV_32FC2 && weight.type() == CV_32FC2 &&
+  CV_Assert(target.type() == CV_32FC2 && weight.type() == kFlowWeightType &&
             target.size() == weight.size() && target.cols == grid.width &&
             target.rows == grid.height);
   TwoViewResult result;
@@ -20,9 +22,9 @@ TwoViewResult initializeTwoView(const CameraModel& grid, const cv::Mat& target,
   std::vector<cv::Point> cells;
   for (int v = 0; v < target.rows; ++v) {
     const cv::Vec2f* t = target.ptr<cv::Vec2f>(v);
-    const cv::Vec2f* w = weight.ptr<cv::Vec2f>(v);
+    const cv::Vec3f* w = weight.ptr<cv::Vec3f>(v);
     for (int u = 0; u < target.cols; ++u) {
-      if (!(w[u][0] > 0 || w[u][1] > 0) || !std::isfinite(t[u][0]) || !std::isfinite(t[u][1])) {
+      if (!(w[u][0] > 0 || w[u][2] > 0) || !std::isfinite(t[u][0]) || !std::isfinite(t[u][1])) {
         continue;
       }
       pa.emplace_back(static_cast<float>(u), static_cast<float>(v));

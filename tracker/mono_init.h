@@ -46,9 +46,9 @@ struct TwoViewResult {
 };
 
 /// Relative pose of b and inverse depths of a from grid correspondences a -> b (target CV_32FC2:
-/// location in b's grid of each grid pixel of a; weight CV_32FC2, a pixel counts where either
-/// component is > 0) on the pinhole grid camera. The translation is scaled so that the median
-/// inverse depth of the inliers is options.median_inv_depth.
+/// location in b's grid of each grid pixel of a; weight kFlowWeightType, a pixel counts where
+/// either diagonal entry is > 0) on the pinhole grid camera. The translation is scaled so that the
+/// median inverse depth of the inliers is options.median_inv_depth.
 TwoViewResult initializeTwoView(const CameraModel& grid, const cv::Mat& target,
                                 const cv::Mat& weight, const TwoViewOptions& options = {});
 

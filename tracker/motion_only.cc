@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <limits>
 #include <stdexcept>
 
 #include <Eigen/Cholesky>
@@ -12,8 +11,6 @@
 
 namespace radslam {
 namespace {
-
-constexpr double kInf = std::numeric_limits<double>::infinity();
 
 void checkImage(const cv::Mat& m, int type, const CameraModel& cam, const std::string& what) {
   if (m.empty() || m.type() != type || m.cols != cam.width || m.rows != cam.height) {
@@ -46,7 +43,7 @@ void validate(const CameraModel& camera, const std::vector<DenseBaKeyframe>& key
                                   std::to_string(keyframes.size()) + " keyframes)");
     }
     checkImage(e.target, CV_32FC2, camera, name + " target");
-    checkImage(e.weight, CV_32FC2, camera, name + " weight");
+    checkImage(e.weight, kFlowWeightType, camera, name + " weight");
   }
 }
 
@@ -89,13 +86,12 @@ double MotionOnlyAligner::linearizeSamples(
     for (int v = 0; v < camera.height; ++v) {
       const float* d = kf.inv_depth.ptr<float>(v);
       const cv::Vec2f* target = e.target.ptr<cv::Vec2f>(v);
-      const cv::Vec2f* weight = e.weight.ptr<cv::Vec2f>(v);
+      const cv::Vec3f* weight = e.weight.ptr<cv::Vec3f>(v);
       const double yn = (v - camera.cy) / camera.fy;
       for (int u = 0; u < camera.width; ++u) {
-        double wu = weight[u][0], wv = weight[u][1];
-        if (!(wu > 0 && wu < kInf)) wu = 0;
-        if (!(wv > 0 && wv < kInf)) wv = 0;
-        if (wu == 0 && wv == 0) continue;
+        Eigen::Matrix2d W;
+        if (!flowInformation(weight[u], &W(0, 0), &W(0, 1), &W(1, 1))) continue;
+        W(1, 0) = W(0, 1);
         const double tu = target[u][0], tv = target[u][1];
         if (!std::isfinite(tu) || !std::isfinite(tv) || !std::isfinite(d[u])) continue;
         double pu, pv;
@@ -106,18 +102,17 @@ double MotionOnlyAligner::linearizeSamples(
         }
         const double ru = tu - pu, rv = tv - pv;
         double irls;
-        cost += dense_ba::robustCost(options_.robust_kernel, wu * ru * ru + wv * rv * rv,
-                                     options_.robust_scale, &irls);
+        const Eigen::Vector2d r(ru, rv);
+        cost += dense_ba::robustCost(options_.robust_kernel, r.dot(W * r), options_.robust_scale,
+                                     &irls);
         err += std::sqrt(ru * ru + rv * rv);
         ++n;
         if (jac) {
           // delta on the right of T_world_frame is xi = -delta on the left of T_frame_k, so
           // dr/d delta = -(-J_xi) = J_xi.
-          Mat26 WJ;
-          WJ.row(0) = irls * wu * J.row(0);
-          WJ.row(1) = irls * wv * J.row(1);
+          const Mat26 WJ = irls * W * J;
           A.noalias() += J.transpose() * WJ;
-          b.noalias() += WJ.transpose() * Eigen::Vector2d(ru, rv);
+          b.noalias() += WJ.transpose() * r;
         }
         dense_ba::DepthSample m;
         if (measured.empty() ||

@@ -30,7 +30,7 @@ struct MotionOnlyEdge {
   /// CV_32FC2, camera grid size: for each grid pixel of the keyframe its location (u, v) in the
   /// frame's grid (pixels). Non-finite entries are ignored.
   cv::Mat target;
-  /// CV_32FC2, camera grid size: inverse variances (1/px^2) of target u and v.
+  /// kFlowWeightType, camera grid size: information matrices of the targets (as DenseBaEdge).
   cv::Mat weight;
 };
 

@@ -310,7 +310,7 @@ KeyframeData Tracker::Impl::newKeyframeData(const Frame& frame, const PreparedIm
   kf.color = preparer->prepareColor(frame.color, image);
   kf.grey = image.grey;
   kf.gradients = imageGradients(image.grey);
-  kf.structure = cellStructureTensor(kf.gradients, g.cell);
+  kf.structure = cellStructureTensor(kf.gradients, g.cell, moving);
   kf.right_grey = image.right_grey;
   kf.moving = moving;
   if (mode == TrackerMode::kRgbd || (segmenter && mode != TrackerMode::kMono))
@@ -346,7 +346,8 @@ void Tracker::Impl::undistortFirstKeyframe(const Vec3& omega) {
   k.color = fresh.color;
   k.grey = fresh.grey;
   k.gradients = fresh.gradients;
-  k.structure = fresh.structure;
+  // The keyframe keeps its own moving mask (fresh's is the current frame's).
+  k.structure = cellStructureTensor(k.gradients, preparer->geometry().cell, k.moving);
   k.right_grey = fresh.right_grey;
   k.depth = fresh.depth;
   k.sensor_inv_depth = fresh.sensor_inv_depth;
@@ -541,11 +542,11 @@ void Tracker::Impl::segmentMotion(const KeyframeData& ref, int64_t frame_index,
     for (int v = 0; v < depth_flow_grid.rows; ++v) {
       for (int u = 0; u < depth_flow_grid.cols; ++u) {
         const cv::Vec2f a = targets.at<cv::Vec2f>(v, u), b = targets_shifted.at<cv::Vec2f>(v, u);
-        const cv::Vec2f w = unmasked.weight.at<cv::Vec2f>(v, u);
+        const cv::Vec3f w = unmasked.weight.at<cv::Vec3f>(v, u);
         const float change = g.cell * std::hypot(b[0] - a[0], b[1] - a[1]);
         depth_flow_grid.at<float>(v, u) =
             std::isfinite(change) && std::isfinite(sigma.at<float>(v, u)) ? change : kInf;
-        trusted_grid.at<uint8_t>(v, u) = w[0] > 0 || w[1] > 0;
+        trusted_grid.at<uint8_t>(v, u) = w[0] > 0 || w[2] > 0;
       }
     }
     cv::Mat depth_flow, trusted;

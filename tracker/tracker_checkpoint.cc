@@ -20,8 +20,8 @@ namespace radslam {
 namespace {
 
 constexpr char kMagic[8] = {'R', 'S', 'T', 'R', 'K', 'C', 'K', '\0'};
-constexpr uint32_t kFormat = 4;  // 2: object windows and planes; 3: rolling shutter;
-                                 // 4: measured depth
+constexpr uint32_t kFormat = 5;  // 2: object windows and planes; 3: rolling shutter;
+                                 // 4: measured depth; 5: flow information matrices
 
 /// What a checkpoint's state is only valid with.
 struct StateOptions {
@@ -90,7 +90,7 @@ std::string checkImages(const KeyframeGraph& graph, const std::vector<PendingFra
       return "window keyframe " + std::to_string(id) + " without its image";
   for (const PendingFrame& f : pending) {
     if (f.target.size() != grid || f.weight.size() != grid || f.target.type() != CV_32FC2 ||
-        f.weight.type() != CV_32FC2)
+        f.weight.type() != kFlowWeightType)
       return "pending frame with correspondences of a wrong size";
     const std::array<int, 2> depth_types{CV_32FC1, CV_32FC1};
     if (!imageFits(f.measured.inv_depth, grid, depth_types) ||

@@ -84,7 +84,7 @@ inline DenseBaEdge makeEdge(const SyntheticScene& s, int i, int j, double sigma,
   const SE3 T_world_j = T_i_other ? s.T_world_cam[i] * *T_i_other : s.T_world_cam[j];
   if (T_i_other) e.T_i_other = *T_i_other;
   e.target = cv::Mat(cam.height, cam.width, CV_32FC2);
-  e.weight = cv::Mat(cam.height, cam.width, CV_32FC2);
+  e.weight = cv::Mat(cam.height, cam.width, kFlowWeightType);
   std::normal_distribution<double> N(0.0, 1.0);
   const double weight = sigma > 0 ? 1.0 / (sigma * sigma) : w;
   for (int v = 0; v < cam.height; ++v) {
@@ -100,9 +100,9 @@ inline DenseBaEdge makeEdge(const SyntheticScene& s, int i, int j, double sigma,
       e.target.at<cv::Vec2f>(v, u) =
           inside ? cv::Vec2f(static_cast<float>(px.x() + nu), static_cast<float>(px.y() + nv))
                  : cv::Vec2f(0, 0);
-      e.weight.at<cv::Vec2f>(v, u) =
-          inside ? cv::Vec2f(static_cast<float>(weight), static_cast<float>(weight))
-                 : cv::Vec2f(0, 0);
+      e.weight.at<cv::Vec3f>(v, u) =
+          inside ? cv::Vec3f(static_cast<float>(weight), 0, static_cast<float>(weight))
+                 : cv::Vec3f(0, 0, 0);
     }
   }
   return e;
@@ -147,8 +147,8 @@ inline void perturbDepths(cv::Mat* d, double relative, std::mt19937* rng) {
 }
 
 /// A small problem (3 keyframes, 8x6 grid) exercising everything the assembly handles: duplicate
-/// edges, a stereo edge, priors on part of a keyframe with a level prior, zero weights, outliers
-/// for the Huber kernel, a perturbed state.
+/// edges, a stereo edge, priors on part of a keyframe with a level prior, zero weights, weights
+/// with a cross term (an aperture), outliers for the Huber kernel, a perturbed state.
 inline DenseBaProblem richProblem(std::mt19937* rng) {
   test::SyntheticScene s = makeScene(3, 8, 6, 7.0, rng, 0.4);
   DenseBaProblem p = makeProblem(s, 0.0, rng);
@@ -159,15 +159,17 @@ inline DenseBaProblem richProblem(std::mt19937* rng) {
   std::uniform_real_distribution<double> U(0, 1);
   for (DenseBaEdge& e : p.edges) {
     for (int q = 0; q < 48; ++q) {
-      cv::Vec2f& w = e.weight.at<cv::Vec2f>(q);
+      cv::Vec3f& w = e.weight.at<cv::Vec3f>(q);
       cv::Vec2f& t = e.target.at<cv::Vec2f>(q);
       const double x = U(*rng);
       if (x < 0.1)
-        w = cv::Vec2f(0, 0);
+        w = cv::Vec3f(0, 0, 0);
       else if (x < 0.15)
         t += cv::Vec2f(4.0f, -3.0f);  // outlier
       else if (x < 0.2)
-        w[1] = 0;  // one component only
+        w[2] = 0;  // one component only
+      else if (x < 0.6)
+        w[1] = static_cast<float>(0.9 * (2 * U(*rng) - 1) * std::sqrt(w[0] * w[2]));
       w *= static_cast<float>(0.5 + U(*rng));
     }
   }

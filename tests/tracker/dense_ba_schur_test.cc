@@ -83,9 +83,11 @@ FullSystem buildFullSystem(const DenseBaProblem& prob, const DenseBaOptions& opt
     for (int v = 0; v < cam.height; ++v) {
       for (int u = 0; u < cam.width; ++u) {
         const cv::Vec2f t = e.target.at<cv::Vec2f>(v, u);
-        const cv::Vec2f w = e.weight.at<cv::Vec2f>(v, u);
-        const double wu = w[0] > 0 ? w[0] : 0, wv = w[1] > 0 ? w[1] : 0;
-        if (wu == 0 && wv == 0) continue;
+        Eigen::Matrix2d Wf;
+        if (!flowInformation(e.weight.at<cv::Vec3f>(v, u), &Wf(0, 0), &Wf(0, 1), &Wf(1, 1))) {
+          continue;
+        }
+        Wf(1, 0) = Wf(0, 1);
         const double d = prob.keyframes[e.i].inv_depth.at<float>(v, u);
         Eigen::Vector2d r, Hd;
         Mat26 Hi, Hj;
@@ -93,10 +95,10 @@ FullSystem buildFullSystem(const DenseBaProblem& prob, const DenseBaOptions& opt
                              opt.min_depth_ratio, &r, &Hi, &Hj, &Hd)) {
           continue;
         }
-        const double s2 = wu * r(0) * r(0) + wv * r(1) * r(1);
+        const double s2 = r.dot(Wf * r);
         double irls;
         dense_ba::huber(s2, opt.robust_scale, &irls);
-        const Eigen::Matrix2d W = Eigen::Vector2d(irls * wu, irls * wv).asDiagonal();
+        const Eigen::Matrix2d W = irls * Wf;
         Eigen::MatrixXd J = Eigen::MatrixXd::Zero(2, total);
         const int p = v * cam.width + u;
         J(0, dcol(e.i, p)) = Hd(0);

@@ -33,8 +33,8 @@ cv::Mat observed(const DenseBaProblem& prob, int k) {
   for (const DenseBaEdge& e : prob.edges) {
     if (e.i != k) continue;
     for (int q = 0; q < static_cast<int>(mask.total()); ++q) {
-      const cv::Vec2f w = e.weight.at<cv::Vec2f>(q);
-      if (w[0] > 0 || w[1] > 0) mask.at<uint8_t>(q) = 255;
+      const cv::Vec3f w = e.weight.at<cv::Vec3f>(q);
+      if (w[0] > 0 || w[2] > 0) mask.at<uint8_t>(q) = 255;
     }
   }
   return mask;
@@ -466,7 +466,7 @@ TEST(DenseBa, ReprojectKeyframePredictsTheTargets) {
   const cv::Mat pred = reprojectKeyframe(s.camera, kf, s.T_world_cam[1]);
   int compared = 0;
   for (int q = 0; q < 16 * 12; ++q) {
-    if (prob.edges[0].weight.at<cv::Vec2f>(q)[0] == 0) continue;
+    if (prob.edges[0].weight.at<cv::Vec3f>(q)[0] == 0) continue;
     EXPECT_LT(cv::norm(pred.at<cv::Vec2f>(q) - prob.edges[0].target.at<cv::Vec2f>(q)), 1e-4);
     ++compared;
   }

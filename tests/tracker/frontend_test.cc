@@ -10,6 +10,7 @@
 
 #include "common/camera.h"
 #include "common/synthetic.h"
+#include "tracker/dense_ba.h"
 #include "tracker/frontend_depth.h"
 #include "tracker/frontend_flow.h"
 #include "tracker/frontend_refine.h"
@@ -174,7 +175,7 @@ TEST(DepthPrior, VarianceMatchesSampledInverseDepths) {
 
 TEST(Keyframes, SelectionTriggersAtTheThreshold) {
   const cv::Size grid(64, 48);
-  const cv::Mat weight(grid, CV_32FC2, cv::Scalar(1, 1));
+  const cv::Mat weight(grid, kFlowWeightType, cv::Scalar(1, 0, 1));
   auto shifted = [&](double du, double dv) {
     cv::Mat t(grid, CV_32FC2);
     for (int v = 0; v < grid.height; ++v) {
@@ -195,8 +196,8 @@ TEST(Keyframes, SelectionTriggersAtTheThreshold) {
   EXPECT_FALSE(isNewKeyframe(below, policy));
   EXPECT_TRUE(isNewKeyframe(above, policy));
   // Zero-weight pixels do not count; losing most of them forces a keyframe.
-  cv::Mat sparse(grid, CV_32FC2, cv::Scalar(0, 0));
-  sparse.rowRange(0, 10).setTo(cv::Scalar(1, 1));
+  cv::Mat sparse(grid, kFlowWeightType, cv::Scalar(0, 0, 0));
+  sparse.rowRange(0, 10).setTo(cv::Scalar(1, 0, 1));
   const FlowMotion lost = measureFlowMotion(shifted(0.5, 0), sparse);
   EXPECT_NEAR(lost.valid_fraction, 10.0 / 48, 1e-9);
   EXPECT_TRUE(isNewKeyframe(lost, policy));
@@ -205,7 +206,7 @@ TEST(Keyframes, SelectionTriggersAtTheThreshold) {
 TEST(Keyframes, ParallaxSplitsRotationFromTranslation) {
   const GridGeometry g = makeGridGeometry(pinhole(512, 384, 400), kCell);
   const CameraModel& cam = g.grid;
-  const cv::Mat weight(g.gridSize(), CV_32FC2, cv::Scalar(1, 1));
+  const cv::Mat weight(g.gridSize(), kFlowWeightType, cv::Scalar(1, 0, 1));
   // Targets of a pure rotation about y: all of the flow is rotation, no parallax.
   const Mat3 R = SO3::exp(Vec3(0, 0.03, 0)).matrix();
   cv::Mat rotated(g.gridSize(), CV_32FC2), shifted(g.gridSize(), CV_32FC2);
@@ -342,7 +343,7 @@ TEST(Flow, ForwardBackwardFailureLowersConfidence) {
   for (int v = 0; v < c.weight.rows; ++v) {
     for (int u = 0; u < c.weight.cols; ++u) {
       const cv::Rect cell(kCell * u, kCell * v, kCell, kCell);
-      const double w = c.weight.at<cv::Vec2f>(v, u)[0];
+      const double w = c.weight.at<cv::Vec3f>(v, u)[0];
       if ((cell & p.covered_in_b) == cell) {
         w_occ += w;
         ++n_occ;
@@ -363,13 +364,56 @@ TEST(Flow, ForwardBackwardFailureLowersConfidence) {
     for (int u = 2; u < c.target.cols - 2; ++u) {
       const cv::Rect cell(kCell * u, kCell * v, kCell, kCell);
       if ((cell & cv::Rect(84, 56, 124, 80)).area() > 0) continue;
-      if (c.weight.at<cv::Vec2f>(v, u)[0] <= 0) continue;
+      if (c.weight.at<cv::Vec3f>(v, u)[0] <= 0) continue;
       ++total;
       const cv::Vec2f t = c.target.at<cv::Vec2f>(v, u);
       good += std::hypot(t[0] - (u + 0.5), t[1] - v) < 0.1;
     }
   }
   EXPECT_GT(good, 0.95 * total);
+}
+
+TEST(Flow, DiagonalStripesConstrainOnlyTheFlowAcrossThem) {
+  // Stripes along (1, -1): a shift along them is invisible (aperture), one across them is not.
+  // The information matrix keeps the constraint across the stripes at any angle.
+  const int w = 256, h = 192;
+  cv::Mat a(h, w, CV_8UC1), b(h, w, CV_8UC1);
+  const double period = 11.0, shift = 1.5;  // working px; b is a shifted across the stripes
+  for (int y = 0; y < h; ++y) {
+    for (int x = 0; x < w; ++x) {
+      const double s = (x + y) / std::sqrt(2.0);
+      a.at<uint8_t>(y, x) = cv::saturate_cast<uint8_t>(128 + 80 * std::sin(2 * M_PI * s / period));
+      b.at<uint8_t>(y, x) =
+          cv::saturate_cast<uint8_t>(128 + 80 * std::sin(2 * M_PI * (s - shift) / period));
+    }
+  }
+  const GridGeometry g = makeGridGeometry(pinhole(w, h, 200), kCell);
+  FlowOptions options;
+  DenseFlow flow(options);
+  const Correspondences c =
+      flowToCorrespondences(a, b, flow.compute(a, b), flow.compute(b, a), g, options);
+  const Eigen::Vector2d across(1 / std::sqrt(2.0), 1 / std::sqrt(2.0));
+  const Eigen::Vector2d along(1 / std::sqrt(2.0), -1 / std::sqrt(2.0));
+  int cells = 0, anisotropic = 0;
+  for (int v = 2; v < c.weight.rows - 2; ++v) {
+    for (int u = 2; u < c.weight.cols - 2; ++u) {
+      Eigen::Matrix2d W;
+      if (!flowInformation(c.weight.at<cv::Vec3f>(v, u), &W(0, 0), &W(0, 1), &W(1, 1))) continue;
+      W(1, 0) = W(0, 1);
+      ++cells;
+      EXPECT_GT(across.dot(W * across), 3 * along.dot(W * along)) << "cell " << u << ", " << v;
+      anisotropic += across.dot(W * across) > 20 * along.dot(W * along);
+      // Weights from the per-axis variances alone, diag(1 / Sigma_uu, 1 / Sigma_vv), would lose
+      // most of it: both variances hold the stripes' large one.
+      const Eigen::Matrix2d S = W.inverse();
+      EXPECT_GT(across.dot(W * across), 5 * 0.5 * (1 / S(0, 0) + 1 / S(1, 1)));
+    }
+  }
+  // DIS slides along the stripes: most cells' forward-backward errors exceed fb_max_px and
+  // fail. Those errors lie along the stripes and leave the constraint across them (a few cells'
+  // flow errs across as well).
+  EXPECT_GT(cells, 50);
+  EXPECT_GT(anisotropic, 0.95 * cells);
 }
 
 TEST(Flow, CellRefinementRemovesTheZoomBias) {
@@ -391,7 +435,7 @@ TEST(Flow, CellRefinementRemovesTheZoomBias) {
     std::vector<double> errors;
     for (int v = 2; v < corr.target.rows - 2; ++v) {
       for (int u = 2; u < corr.target.cols - 2; ++u) {
-        if (corr.weight.at<cv::Vec2f>(v, u)[0] <= 0) continue;
+        if (corr.weight.at<cv::Vec3f>(v, u)[0] <= 0) continue;
         const double pu = u - (cx - 3.5) / kCell, pv = v - (cy - 3.5) / kCell;
         const cv::Vec2f t = corr.target.at<cv::Vec2f>(v, u);
         const double tu = t[0] - (cx - 3.5) / kCell, tv = t[1] - (cy - 3.5) / kCell;
@@ -451,7 +495,7 @@ TEST(Flow, AffineRefinementFollowsATurningZoom) {
     std::vector<double> errors;
     for (int v = 2; v < target.rows - 2; ++v) {
       for (int u = 2; u < target.cols - 2; ++u) {
-        if (!(weight.at<cv::Vec2f>(v, u)[0] > 0)) continue;
+        if (!(weight.at<cv::Vec3f>(v, u)[0] > 0)) continue;
         const cv::Vec2d p = warped(kCell * u + 3.5, kCell * v + 3.5);
         const cv::Vec2f t = target.at<cv::Vec2f>(v, u);
         errors.push_back(std::hypot(kCell * t[0] + 3.5 - p[0], kCell * t[1] + 3.5 - p[1]));
@@ -595,7 +639,7 @@ TEST(Flow, TargetsMatchTrueReprojectionOnSyntheticRoom) {
   std::vector<float> weights;
   for (int v = 0; v < c.weight.rows; ++v) {
     for (int u = 0; u < c.weight.cols; ++u) {
-      const float w = c.weight.at<cv::Vec2f>(v, u)[0];
+      const float w = c.weight.at<cv::Vec3f>(v, u)[0];
       if (w > 0 && std::isfinite(truth.at<cv::Vec2f>(v, u)[0])) weights.push_back(w);
     }
   }
@@ -607,7 +651,7 @@ TEST(Flow, TargetsMatchTrueReprojectionOnSyntheticRoom) {
   for (int v = 0; v < c.weight.rows; ++v) {
     for (int u = 0; u < c.weight.cols; ++u) {
       const cv::Vec2f t = truth.at<cv::Vec2f>(v, u), m = c.target.at<cv::Vec2f>(v, u);
-      const float w = c.weight.at<cv::Vec2f>(v, u)[0];
+      const float w = c.weight.at<cv::Vec3f>(v, u)[0];
       if (!(w > 0) || !std::isfinite(t[0])) continue;
       const double e = std::hypot(t[0] - m[0], t[1] - m[1]);
       all_errors.push_back(e);
@@ -741,7 +785,7 @@ TEST(MovingMasks, KeepMovingPixelsOutOfTheCorrespondences) {
   const Correspondences c =
       flowToCorrespondences(a, b, flow, cv::Mat(), cellStructureTensor(imageGradients(a), 8), g,
                             options, moving_a, moving_b);
-  auto weighted = [&](int u, int v) { return c.weight.at<cv::Vec2f>(v, u)[0] > 0; };
+  auto weighted = [&](int u, int v) { return c.weight.at<cv::Vec3f>(v, u)[0] > 0; };
   EXPECT_FALSE(weighted(1, 1));  // on the patch
   EXPECT_FALSE(weighted(5, 2));  // lands on the patch in b
   EXPECT_TRUE(weighted(4, 2));

@@ -1,5 +1,7 @@
 #include "tracker/mono_init.h"
 
+#include "tracker/dense_ba.h"
+
 #include <cmath>
 #include <random>
 
@@ -31,7 +33,7 @@ TwoViews makeViews(const SE3& T_b_a, double outliers, double noise_px, std::mt19
   std::normal_distribution<double> noise(0, noise_px);
   TwoViews views;
   views.target = cv::Mat(cam.height, cam.width, CV_32FC2);
-  views.weight = cv::Mat(cam.height, cam.width, CV_32FC2, cv::Scalar(1, 1));
+  views.weight = cv::Mat(cam.height, cam.width, kFlowWeightType, cv::Scalar(1, 0, 1));
   views.inv_depth = cv::Mat(cam.height, cam.width, CV_32FC1);
   for (int v = 0; v < cam.height; ++v) {
     for (int u = 0; u < cam.width; ++u) {
@@ -114,8 +116,8 @@ TEST(TwoViewInit, TranslationBelowTheParallaxBoundIsReportedAsTooShort) {
 TEST(TwoViewInit, TooFewCorrespondences) {
   std::mt19937 rng(5);
   TwoViews views = makeViews(SE3(SO3(), Vec3(0, 0, -1)), 0, 0, &rng);
-  views.weight.setTo(cv::Scalar(0, 0));
-  views.weight(cv::Rect(0, 0, 3, 3)).setTo(cv::Scalar(1, 1));
+  views.weight.setTo(cv::Scalar(0, 0, 0));
+  views.weight(cv::Rect(0, 0, 3, 3)).setTo(cv::Scalar(1, 0, 1));
   const TwoViewResult r = initializeTwoView(gridCamera(), views.target, views.weight);
   EXPECT_FALSE(r.ok);
   EXPECT_EQ(r.correspondences, 9);

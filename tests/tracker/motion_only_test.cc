@@ -43,6 +43,9 @@ TEST(MotionOnly, GradientIsHalfTheDerivativeOfTheRobustCost) {
   for (MotionOnlyEdge& e : s.edges) {  // some gross outliers so the kernel is active
     for (int q = 0; q < static_cast<int>(e.target.total()); ++q) {
       if (U(rng) < 0.1) e.target.at<cv::Vec2f>(q) += cv::Vec2f(5.0f, -3.0f);
+      // Anisotropic information (an aperture at some angle) on about half of the pixels.
+      cv::Vec3f& w = e.weight.at<cv::Vec3f>(q);
+      if (U(rng) < 0.5) w[1] = static_cast<float>(0.9 * (2 * U(rng) - 1) * std::sqrt(w[0] * w[2]));
     }
   }
   SE3 T = s.T_world_frame;
@@ -192,7 +195,7 @@ TEST(MotionOnly, TooFewPixelsFailsCleanly) {
   std::mt19937 rng(6);
   AlignmentCase s = makeCase(&rng, 0.0, 1, 16, 12);
   s.edges[0].weight.setTo(cv::Scalar(0, 0));
-  s.edges[0].weight.at<cv::Vec2f>(3, 3) = cv::Vec2f(1, 1);
+  s.edges[0].weight.at<cv::Vec3f>(3, 3) = cv::Vec3f(1, 0, 1);
   const MotionOnlyResult r =
       MotionOnlyAligner().align(s.scene.camera, s.keyframes, s.edges, s.T_world_frame);
   EXPECT_FALSE(r.ok);
