@@ -455,9 +455,10 @@ int runPipeline(const std::vector<std::string>& scenes, int frames, int width, d
         row.iou = seg.iou;
         row.seg_fps = seg.fps;
         if (seeds > 1) {
-          std::fprintf(stderr, "%s %s seed %llu: dyn %.4f frozen %.4f ratio %.2f, IoU %.2f\n",
-                       name.c_str(), modes[m].c_str(), static_cast<unsigned long long>(config.seed),
-                       row.dyn, row.frozen, row.dyn / row.frozen, row.iou);
+          std::fprintf(
+              stderr, "%s %s seed %llu: dyn %.4f frozen %.4f ratio %.2f, IoU %.2f (seg ATE %.4f)\n",
+              name.c_str(), modes[m].c_str(), static_cast<unsigned long long>(config.seed), row.dyn,
+              row.frozen, row.dyn / row.frozen, row.iou, row.seg_ate);
         }
         rows[m].push_back(row);
       }

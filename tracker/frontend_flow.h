@@ -3,27 +3,30 @@
 // confidence (the edge weight). DROID-SLAM's ConvGRU replaced by classical flow (DESIGN.md 3).
 //
 /// Confidence model. For grid pixel p (a c x c cell of working pixels, c = 8) the flow target
-/// is the mean flow over the cell. Its 2 x 2 covariance, in grid px^2, is Sigma = s^2 I +
-/// grad_gain J^-1 with
+/// is the mean flow over the cell. Its 2 x 2 covariance, in grid px^2, is
 ///
-///   s^2       = sigma0^2                  noise floor of a well-textured, consistent cell
-///             + fb_gain e_fb^2            e_fb: RMS over the cell of the forward-backward error
-///                                         |f_ab(x) + f_ba(x + f_ab(x))|, grid px
-///             + (e_ph / photo_scale)^2    e_ph: RMS over the cell of the photometric residual
+///   Sigma = sigma0^2 I                    noise floor of a well-textured, consistent cell
+///         + 2 fb_gain M                   M: mean over the cell of e e^T, e = f_ab(x) +
+///                                         f_ba(x + f_ab(x)) the forward-backward error, grid
+///                                         px (an isotropic error adds fb_gain |e|^2 to each
+///                                         component; a flow that slides along a stripe errs
+///                                         along it only)
+///         + (e_ph / photo_scale)^2 I      e_ph: RMS over the cell of the photometric residual
 ///                                         I_a(x) - I_b(x + f_ab(x)) minus its cell mean (robust
 ///                                         to exposure changes), grey levels
+///         + grad_gain J^-1                J = mean(g g^T) + grad_floor I, the cell's structure
+///                                         tensor, (grey/working px)^2: Lucas-Kanade's flow
+///                                         covariance is proportional to J^-1, so flow along a
+///                                         stripe (aperture problem), at any angle, gets no
+///                                         weight and flow across it keeps its weight
 ///
-/// and J = mean(g g^T) + grad_floor I the cell's structure tensor, (grey/working px)^2:
-/// Lucas-Kanade's flow covariance is proportional to J^-1, so flow along a stripe (aperture
-/// problem), at any angle, gets no weight and flow across it keeps its weight.
-///
-/// The RMS terms use every other pixel of every other row of the cell (16 of 64 for c = 8: a
+/// The statistics use every other pixel of every other row of the cell (16 of 64 for c = 8: a
 /// quarter of the cost and plenty for a cell statistic); the target uses all pixels. The
 /// weight is the information matrix Sigma^-1 (kFlowWeightType, tracker/dense_ba.h); it is 0
-/// (a failure) when e_fb > fb_max_px,
-/// e_ph > photo_max, fewer than half of the cell's pixels land inside b, the target leaves b
-/// or the flow is not finite. The terms add as independent error sources; the constants and
-/// their calibration are documented at FlowOptions.
+/// (a failure) when e_fb = sqrt(tr M) > fb_max_px, e_ph > photo_max, fewer than half of the
+/// cell's pixels land inside b, the target leaves b or the flow is not finite. The terms add
+/// as independent error sources; the constants and their calibration are documented at
+/// FlowOptions.
 #pragma once
 
 #include <string>
