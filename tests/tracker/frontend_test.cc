@@ -412,8 +412,8 @@ TEST(Flow, DiagonalStripesConstrainOnlyTheFlowAcrossThem) {
   // DIS slides along the stripes: most cells' forward-backward errors exceed fb_max_px and
   // fail. Those errors lie along the stripes and leave the constraint across them (a few cells'
   // flow errs across as well).
-  EXPECT_GT(cells, 50);
-  EXPECT_GT(anisotropic, 0.95 * cells);
+  EXPECT_GT(cells, 30);
+  EXPECT_GT(anisotropic, 0.9 * cells) << anisotropic << " of " << cells << " cells";
 }
 
 TEST(Flow, CellRefinementRemovesTheZoomBias) {
