@@ -42,7 +42,6 @@
 //    complement H_T = C - E P^-1 E^T (ReducedCameraSolver), then dd = P^-1 (w - E^T dxi).
 #pragma once
 
-#include <algorithm>
 #include <cmath>
 #include <memory>
 #include <optional>
@@ -74,8 +73,8 @@ inline bool flowInformation(const cv::Vec3f& w, double* uu, double* uv, double* 
   }
   *uu = w[0];
   *vv = w[2];
-  const double bound = std::sqrt(*uu * *vv);
-  *uv = std::clamp(static_cast<double>(w[1]), -bound, bound);
+  *uv = w[1];
+  if (*uv * *uv > *uu * *vv) *uv = std::copysign(std::sqrt(*uu * *vv), *uv);
   return true;
 }
 
