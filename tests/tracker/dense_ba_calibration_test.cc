@@ -24,15 +24,47 @@ struct Calibration {
   double depthFraction() const { return double(depth_within) / depth_samples; }
 };
 
-// One trial: random scene, noisy targets (sigma px), optional noisy priors (relative sigma of the
-// inverse depth), optimisation from a perturbed start, marginals, errors against the truth.
+// Every weighted target of `prob` (noise-free) gets Gaussian noise with its own covariance, an
+// ellipse of standard deviations sigma_across and sigma_along at a random angle (an edge's
+// aperture), and that covariance's inverse as its weight.
+void makeAnisotropic(DenseBaProblem* prob, double sigma_across, double sigma_along,
+                     std::mt19937* rng) {
+  std::normal_distribution<double> N(0.0, 1.0);
+  std::uniform_real_distribution<double> angle(0, M_PI);
+  for (DenseBaEdge& e : prob->edges) {
+    for (int q = 0; q < static_cast<int>(e.weight.total()); ++q) {
+      cv::Vec3f& w = e.weight.at<cv::Vec3f>(q);
+      if (!(w[0] > 0)) continue;
+      const double a = angle(*rng);
+      Eigen::Matrix2d R;
+      R << std::cos(a), -std::sin(a), std::sin(a), std::cos(a);
+      const Eigen::Vector2d noise =
+          R * Eigen::Vector2d(sigma_across * N(*rng), sigma_along * N(*rng));
+      const Eigen::Matrix2d info =
+          R *
+          Eigen::Vector2d(1 / (sigma_across * sigma_across), 1 / (sigma_along * sigma_along))
+              .asDiagonal() *
+          R.transpose();
+      e.target.at<cv::Vec2f>(q) +=
+          cv::Vec2f(static_cast<float>(noise(0)), static_cast<float>(noise(1)));
+      w = cv::Vec3f(static_cast<float>(info(0, 0)), static_cast<float>(info(0, 1)),
+                    static_cast<float>(info(1, 1)));
+    }
+  }
+}
+
+// One trial: random scene, noisy targets (sigma px; with sigma_along > 0 an anisotropic noise of
+// sigma across and sigma_along along a random direction per target), optional noisy priors
+// (relative sigma of the inverse depth), optimisation from a perturbed start, marginals, errors
+// against the truth.
 void runTrial(std::mt19937* rng, DenseBaGauge gauge, double sigma, double prior_rel,
-              Calibration* cal, bool measured = false) {
+              Calibration* cal, bool measured = false, double sigma_along = 0) {
   const int K = 4, W = 32, H = 24;
   test::SyntheticScene s = test::makeScene(K, W, H, 0.9 * W, rng, 0.3);
   // The depth residual fits planes to the measured grid: a slanted wall 3.5 m away.
   if (measured) test::makePlanar(&s, Vec3(0.3, -0.2, 1.0).normalized(), 3.5);
-  DenseBaProblem prob = test::makeProblem(s, sigma, rng);
+  DenseBaProblem prob = test::makeProblem(s, sigma_along > 0 ? 0.0 : sigma, rng);
+  if (sigma_along > 0) makeAnisotropic(&prob, sigma, sigma_along, rng);
   std::normal_distribution<double> N(0.0, 1.0);
   if (prior_rel > 0) {
     for (int k = 0; k < K; ++k) {
@@ -105,6 +137,18 @@ TEST(DenseBaCalibration, MonocularMarginalsMatchTheErrors) {
     if (HasFatalFailure()) return;
   }
   expectCalibrated(cal, "monocular");
+}
+
+// Flow noise that is small across an edge and large along it, weighted by its information
+// matrix: the marginals stay calibrated with the cross terms.
+TEST(DenseBaCalibration, MarginalsWithAnisotropicFlowNoiseMatchTheErrors) {
+  std::mt19937 rng(150);
+  Calibration cal;
+  for (int trial = 0; trial < 100; ++trial) {
+    runTrial(&rng, DenseBaGauge::kFirstTwoPoses, 0.2, 0.0, &cal, false, 1.5);
+    if (HasFatalFailure()) return;
+  }
+  expectCalibrated(cal, "monocular, anisotropic flow noise");
 }
 
 TEST(DenseBaCalibration, RgbdMarginalsWithDepthPriorsMatchTheErrors) {
