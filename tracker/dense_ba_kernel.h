@@ -92,7 +92,8 @@ struct DepthSample {
 };
 
 /// A measured map (CV_32FC1 mean and variance) as sampleDepth reads it: row-major doubles, the
-/// variance 0 (and the mean 0) where the mean is not finite or the variance not in (0, inf).
+/// variance 0 (and the mean 0) where the mean is not finite or the variance not in (0, inf);
+/// both empty for an empty map.
 inline void depthSamples(const cv::Mat& mean, const cv::Mat& var, std::vector<double>* out_mean,
                          std::vector<double>* out_var) {
   out_mean->resize(mean.total());

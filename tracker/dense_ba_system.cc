@@ -273,11 +273,10 @@ void DenseBundleAdjuster::System::rowPass(const Edge& e, EdgeContext* x, int v, 
     if constexpr (kLinearize) {
       // r = target - pixel, so dr/dxi = -J, dr/dd = -Jd: the signs cancel in J^T W J, and
       // J^T W r is kept with the pixel Jacobian's sign (see dense_ba_system.h).
-      // W times the residual and times the depth Jacobian, with the IRLS weight.
+      // W with the IRLS weight, and W times the depth Jacobian.
       const Block au = irls * wu, auv = irls * wuv, av = irls * wv;
       const Block Jd0 = fx * iz * (t(0) - xn * t(2));
       const Block Jd1 = fy * iz * (t(1) - yn * t(2));
-      const Block wr0 = au * ru + auv * rv, wr1 = auv * ru + av * rv;
       const Block wd0 = au * Jd0 + auv * Jd1, wd1 = auv * Jd0 + av * Jd1;
       Eigen::Map<Block>(P_row_.data() + u0) += wd0 * Jd0 + wd1 * Jd1;
       Eigen::Map<Block>(w_row_.data() + u0) += wd0 * ru + wd1 * rv;
@@ -288,6 +287,7 @@ void DenseBundleAdjuster::System::rowPass(const Edge& e, EdgeContext* x, int v, 
             fx * s, Block::Zero(), -fx * s * xn, -fx * xn * yn, fx * (1.0 + xn.square()), -fx * yn};
         const Block j1[6] = {Block::Zero(), fy * s, -fy * s * yn, -fy * (1.0 + yn.square()),
                              fy * xn * yn,  fy * xn};
+        const Block wr0 = au * ru + auv * rv, wr1 = auv * ru + av * rv;  // W r
         // Rows of W J: wj0 = W_uu j0 + W_uv j1, wj1 = W_uv j0 + W_vv j1.
         Block wj0[6], wj1[6];
         wj0[0] = au * j0[0];

@@ -55,11 +55,9 @@ double MotionOnlyAligner::linearize(const CameraModel& camera,
                                     const SE3& T_world_frame, Mat6* H, Vec6* g, int* num_residuals,
                                     double* mean_error_px,
                                     const MotionOnlyDepth& frame_depth) const {
-  std::vector<double> measured, measured_var;
-  if (!frame_depth.inv_depth.empty()) {
-    dense_ba::depthSamples(frame_depth.inv_depth, frame_depth.inv_depth_var, &measured,
-                           &measured_var);
-  }
+  std::vector<double> measured, measured_var;  // empty without a frame depth
+  dense_ba::depthSamples(frame_depth.inv_depth, frame_depth.inv_depth_var, &measured,
+                         &measured_var);
   return linearizeSamples(camera, keyframes, edges, T_world_frame, measured, measured_var, H, g,
                           num_residuals, mean_error_px);
 }
@@ -152,11 +150,9 @@ MotionOnlyResult MotionOnlyAligner::align(const CameraModel& camera,
                                           const SE3& T_world_frame_init,
                                           const MotionOnlyDepth& frame_depth) const {
   validate(camera, keyframes, edges, frame_depth);
-  std::vector<double> measured, measured_var;
-  if (!frame_depth.inv_depth.empty()) {
-    dense_ba::depthSamples(frame_depth.inv_depth, frame_depth.inv_depth_var, &measured,
-                           &measured_var);
-  }
+  std::vector<double> measured, measured_var;  // empty without a frame depth
+  dense_ba::depthSamples(frame_depth.inv_depth, frame_depth.inv_depth_var, &measured,
+                         &measured_var);
   MotionOnlyResult result;
   result.T_world_frame = T_world_frame_init;
   Mat6 H;
