@@ -405,17 +405,14 @@ void MotionSegmenter::load(BinaryReader* in, cv::Size size) {
   next_id_ = next_id;
 }
 
-cv::Mat groundPixels(const cv::Mat& depth, const CameraModel& camera, const GroundParams& params) {
-  const int top = depth.rows / 2;
-  const auto point = [&](int u, int v) -> std::optional<Vec3> {
-    const float z = depth.at<float>(v, u);
-    if (!(z > 0 && z < params.max_range_m)) return std::nullopt;
-    return unproject(camera, Eigen::Vector2d(u, v), z);
-  };
+std::optional<Plane> fitGroundPlane(const cv::Mat& depth, const CameraModel& camera,
+                                    const GroundParams& params) {
   std::vector<Vec3> points;
-  for (int v = top; v < depth.rows; v += params.stride_px) {
+  for (int v = depth.rows / 2; v < depth.rows; v += params.stride_px) {
     for (int u = 0; u < depth.cols; u += params.stride_px) {
-      if (const auto p = point(u, v)) points.push_back(*p);
+      const float z = depth.at<float>(v, u);
+      if (z > 0 && z < params.max_range_m)
+        points.push_back(unproject(camera, Eigen::Vector2d(u, v), z));
     }
   }
   PlaneRansacParams ransac;
@@ -434,24 +431,7 @@ cv::Mat groundPixels(const cv::Mat& depth, const CameraModel& camera, const Grou
     // Below the camera: the plane crosses the optical centre's downward vertical (+y) at
     // y = -d / n_y.
     const bool level = std::abs(plane.normal.y()) >= min_cos;
-    if (level && -plane.d / plane.normal.y() >= params.min_height_m) {
-      // The point at depth z of pixel (u, v) is z r with r = ((u - cx) / fx, (v - cy) / fy, 1),
-      // so its distance to the plane is z (n . r) + d, and n . r is linear in u and v.
-      const Vec3& n = plane.normal;
-      const double du = n.x() / camera.fx, dv = n.y() / camera.fy;
-      const double c = n.z() - n.x() * camera.cx / camera.fx - n.y() * camera.cy / camera.fy;
-      cv::Mat ground(depth.size(), CV_8UC1, cv::Scalar(0));
-      for (int v = top; v < depth.rows; ++v) {
-        const float* z = depth.ptr<float>(v);
-        uint8_t* g = ground.ptr<uint8_t>(v);
-        for (int u = 0; u < depth.cols; ++u) {
-          if (!(z[u] > 0 && z[u] < params.max_range_m)) continue;
-          if (std::abs(z[u] * (du * u + dv * v + c) + plane.d) < params.inlier_threshold_m)
-            g[u] = 255;
-        }
-      }
-      return ground;
-    }
+    if (level && -plane.d / plane.normal.y() >= params.min_height_m) return plane;
     std::vector<bool> inlier(points.size(), false);
     for (int i : fit.inliers) inlier[i] = true;
     std::vector<Vec3> rest;
@@ -460,7 +440,27 @@ cv::Mat groundPixels(const cv::Mat& depth, const CameraModel& camera, const Grou
     }
     points = std::move(rest);
   }
-  return cv::Mat();
+  return std::nullopt;
+}
+
+cv::Mat planePixels(const cv::Mat& depth, const CameraModel& camera, const Plane& plane,
+                    double max_range_m, double threshold_m) {
+  // The point at depth z of pixel (u, v) is z r with r = ((u - cx) / fx, (v - cy) / fy, 1), so
+  // its distance to the plane is z (n . r) + d, and n . r is linear in u and v.
+  const Vec3& n = plane.normal;
+  const double du = n.x() / camera.fx, dv = n.y() / camera.fy;
+  const double c = n.z() - n.x() * camera.cx / camera.fx - n.y() * camera.cy / camera.fy;
+  cv::Mat pixels(depth.size(), CV_8UC1, cv::Scalar(0));
+  for (int v = depth.rows / 2; v < depth.rows; ++v) {
+    const float* z = depth.ptr<float>(v);
+    uint8_t* g = pixels.ptr<uint8_t>(v);
+    for (int u = 0; u < depth.cols; ++u) {
+      if (z[u] > 0 && z[u] < max_range_m &&
+          std::abs(z[u] * (du * u + dv * v + c) + plane.d) < threshold_m)
+        g[u] = 255;
+    }
+  }
+  return pixels;
 }
 
 }  // namespace radslam

@@ -18,11 +18,14 @@
 /// (intersection over union at least min_overlap), or gets a new one.
 #pragma once
 
+#include <optional>
+
 #include <opencv2/core.hpp>
 
 #include "common/binary_io.h"
 #include "common/lie.h"
 #include "common/types.h"
+#include "tracker/joints.h"
 
 namespace radslam {
 
@@ -149,9 +152,14 @@ struct GroundParams {
 /// floor): the largest plane fitted by RANSAC to depth's lower half (every stride-th pixel
 /// nearer than max_range_m) whose normal lies within max_tilt_deg of the image's vertical axis
 /// and that lies at least min_height_m below the camera; the planes that fail the test are
-/// removed and the fit repeated (a truck's rear, a facade). Returns its pixels in the lower half
-/// (CV_8UC1 255, depth's size); empty when there is none. depth CV_32FC1 (m, 0 = invalid).
-cv::Mat groundPixels(const cv::Mat& depth, const CameraModel& camera,
-                     const GroundParams& params = {});
+/// removed and the fit repeated (a truck's rear, a facade). In the camera frame; none when no
+/// plane passes. depth CV_32FC1 (m, 0 = invalid).
+std::optional<Plane> fitGroundPlane(const cv::Mat& depth, const CameraModel& camera,
+                                    const GroundParams& params = {});
+
+/// The pixels of depth's lower half nearer than max_range_m whose point lies within
+/// threshold_m of the plane (camera frame). CV_8UC1 255, depth's size.
+cv::Mat planePixels(const cv::Mat& depth, const CameraModel& camera, const Plane& plane,
+                    double max_range_m, double threshold_m);
 
 }  // namespace radslam

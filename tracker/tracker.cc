@@ -175,8 +175,8 @@ TrackerOutput Tracker::process(const Frame& frame) {
     s.track(frame, image, &out);
   }
   out.has_pose = true;
-  out.moving_mask = s.moving;
   const bool segmented = image.class_id.empty() && !s.segmented_class.empty();
+  out.moving_mask = segmented ? cv::Mat(s.segmented_instance > 0) : s.moving;
   if (s.objects && (!image.class_id.empty() || segmented)) {
     PreparedImage masked = image;
     if (segmented) {
@@ -514,13 +514,22 @@ void Tracker::Impl::segmentMotion(const KeyframeData& ref, int64_t frame_index,
       stereo ? p.stereo_disparity_sigma_px / (g.working.fx * baseline_m) : p.depth_sigma_b;
   const double depth_sigma_z0 = stereo ? 0.0 : p.depth_sigma_z0;
   // The ground, looked for only when something moves.
+  const GroundParams ground_params;
+  std::optional<Plane> ground_plane;
   cv::Mat ground;
   bool ground_searched = false;
+  const auto find_ground = [&] {
+    if (ground_searched) return;
+    ground_searched = true;
+    ground_plane = fitGroundPlane(depth, g.working, ground_params);
+    if (ground_plane)
+      ground = planePixels(depth, g.working, *ground_plane, ground_params.max_range_m,
+                           ground_params.inlier_threshold_m);
+  };
   const auto ground_moves = [&](const cv::Mat& instance) {
     if (p.motion_ground_max_moving >= 1 || depth.empty() || cv::countNonZero(instance) == 0)
       return false;
-    if (!ground_searched) ground = groundPixels(depth, g.working);
-    ground_searched = true;
+    find_ground();
     const int ground_count = ground.empty() ? 0 : cv::countNonZero(ground);
     return ground_count > 0 &&
            cv::countNonZero(ground & (instance > 0)) > p.motion_ground_max_moving * ground_count;
@@ -631,9 +640,18 @@ void Tracker::Impl::segmentMotion(const KeyframeData& ref, int64_t frame_index,
       segmented_class.release();
       moving.release();
     } else {
+      // What lies on the ground is the objects' static parent, not theirs: DIS smooths an
+      // object's flow across its lower edge onto the road, a band the objects' points and the
+      // published mask leave out (within 4 cm of the plane: the bottom of a door 5 mm above
+      // the floor stays in). Camera tracking keeps it out too, since its flow is the object's.
+      constexpr double kObjectGroundRangeM = 40, kObjectGroundThresholdM = 0.04;
+      if (!depth.empty()) find_ground();
+      if (ground_plane)
+        instance.setTo(0, planePixels(depth, g.working, *ground_plane, kObjectGroundRangeM,
+                                      kObjectGroundThresholdM));
       segmented_instance = instance;
       segmented_class = cv::Mat(instance.size(), CV_16UC1, cv::Scalar(0));
-      segmented_class.setTo(cv::Scalar(p.motion_class_id), any);
+      segmented_class.setTo(cv::Scalar(p.motion_class_id), instance > 0);
       moving = any;
     }
     tracked->correspondences = correspond(ref.grey, ref.gradients, ref.structure, image.grey,

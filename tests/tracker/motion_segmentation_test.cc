@@ -333,13 +333,14 @@ TEST(FlowFromDepthNoise, SidewaysMoveGivesFxTimesTheInverseDepthSigma) {
 
 // A road 1.5 m below the camera, pitched 4 deg, and the rear of a truck 6 m ahead that covers
 // more of the lower half than the road: the largest plane there is not the ground.
-TEST(GroundPixels, FindsTheRoadBesideALargerTruck) {
+TEST(GroundPlane, FindsTheRoadBesideALargerTruck) {
   const CameraModel camera = smallCamera();
   const double pitch = 4 * M_PI / 180, height = 1.5;
   const Vec3 normal(0, std::cos(pitch), std::sin(pitch));
   const cv::Rect truck(0, 50, 100, 70);
   cv::Mat depth(120, 160, CV_32FC1, cv::Scalar(0));
   cv::Mat road(depth.size(), CV_8UC1, cv::Scalar(0));
+  cv::Mat road_far = road.clone();        // the road's pixels 12-40 m ahead
   cv::Mat truck_off_road = road.clone();  // the truck's pixels more than 0.1 m off the road
   for (int v = 0; v < depth.rows; ++v)
     for (int u = 0; u < depth.cols; ++u) {
@@ -349,20 +350,31 @@ TEST(GroundPixels, FindsTheRoadBesideALargerTruck) {
         truck_off_road.at<uint8_t>(v, u) = std::abs(normal.dot(6 * ray) - height) > 0.1 ? 255 : 0;
       } else if (normal.dot(ray) > 0) {
         depth.at<float>(v, u) = static_cast<float>(height / normal.dot(ray));
-        road.at<uint8_t>(v, u) = v >= 60 && depth.at<float>(v, u) < 12 ? 255 : 0;
+        const float z = depth.at<float>(v, u);
+        road.at<uint8_t>(v, u) = v >= 60 && z < 12 ? 255 : 0;
+        road_far.at<uint8_t>(v, u) = v >= 60 && z >= 12 && z < 40 ? 255 : 0;
       }
     }
-  const cv::Mat ground = groundPixels(depth, camera);
-  ASSERT_FALSE(ground.empty());
+  const GroundParams params;
+  const std::optional<Plane> plane = fitGroundPlane(depth, camera, params);
+  ASSERT_TRUE(plane);
+  const cv::Mat ground =
+      planePixels(depth, camera, *plane, params.max_range_m, params.inlier_threshold_m);
   ASSERT_GT(cv::countNonZero(road), 1000);
   EXPECT_GT(cv::countNonZero(ground & road), 0.95 * cv::countNonZero(road));
   EXPECT_EQ(cv::countNonZero(ground & truck_off_road), 0);
+  EXPECT_EQ(cv::countNonZero(ground & road_far), 0);
+  // Labelled beyond the fit's range (the road below an object 20 m ahead), the plane holds.
+  const cv::Mat far = planePixels(depth, camera, *plane, 40, 0.04);
+  ASSERT_GT(cv::countNonZero(road_far), 100);
+  EXPECT_GT(cv::countNonZero(far & road_far), 0.95 * cv::countNonZero(road_far));
+  EXPECT_EQ(cv::countNonZero(far & truck_off_road), 0);
 
   // Without the road only walls are left: no ground.
   cv::Mat walls = depth.clone();
   walls.setTo(cv::Scalar(6), road);
   walls.setTo(cv::Scalar(0), depth > 6.01f);
-  EXPECT_TRUE(groundPixels(walls, camera).empty());
+  EXPECT_FALSE(fitGroundPlane(walls, camera));
 }
 
 TEST(MotionSegmenter, RejectsBadParameters) {
