@@ -642,8 +642,8 @@ void Tracker::Impl::segmentMotion(const KeyframeData& ref, int64_t frame_index,
     } else {
       // What lies on the ground is the objects' static parent, not theirs: DIS smooths an
       // object's flow across its lower edge onto the road, a band the objects' points and the
-      // published mask leave out (within 4 cm of the plane: the bottom of a door 5 mm above
-      // the floor stays in). Camera tracking keeps it out too, since its flow is the object's.
+      // published mask leave out (within 4 cm of the plane; 8 cm took more of a door that ends
+      // 5 mm above the floor). Camera tracking keeps it out too: its flow is the object's.
       constexpr double kObjectGroundRangeM = 40, kObjectGroundThresholdM = 0.04;
       if (!depth.empty()) find_ground();
       if (ground_plane)
