@@ -247,7 +247,7 @@ struct TrackerParams {
   std::string stereo_matcher = "flow";
   double stereo_min_depth_m = 0.5;
   double motion_max_fraction = 0.5;  // of the image: more moving means the pose is wrong
-  // More than this fraction of the ground plane (tracker/motion_segmentation.h groundPixels)
+  // More than this fraction of the ground plane (tracker/motion_segmentation.h fitGroundPlane)
   // moving means the pose followed an object (a truck alongside driving with the camera): the
   // frame is aligned on the ground alone and judged again; 1 = never.
   double motion_ground_max_moving = 0.3;
