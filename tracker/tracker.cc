@@ -513,18 +513,23 @@ void Tracker::Impl::segmentMotion(const KeyframeData& ref, int64_t frame_index,
   const double depth_sigma_b =
       stereo ? p.stereo_disparity_sigma_px / (g.working.fx * baseline_m) : p.depth_sigma_b;
   const double depth_sigma_z0 = stereo ? 0.0 : p.depth_sigma_z0;
-  // The ground, looked for only when something moves.
-  const GroundParams ground_params;
-  std::optional<Plane> ground_plane;
-  cv::Mat ground;
+  // The ground, looked for once and only when something moves: its pixels within the fit's
+  // range (the ground test) and the band the objects leave out. DIS smooths an object's flow
+  // across its lower edge onto the road; what lies on the ground is the objects' static parent,
+  // not theirs (within 4 cm of the plane; 8 cm took more of a door that ends 5 mm above the
+  // floor).
+  constexpr double kObjectGroundRangeM = 40, kObjectGroundThresholdM = 0.04;
+  cv::Mat ground, ground_band;
   bool ground_searched = false;
   const auto find_ground = [&] {
-    if (ground_searched) return;
+    if (ground_searched || depth.empty()) return;
     ground_searched = true;
-    ground_plane = fitGroundPlane(depth, g.working, ground_params);
-    if (ground_plane)
-      ground = planePixels(depth, g.working, *ground_plane, ground_params.max_range_m,
-                           ground_params.inlier_threshold_m);
+    const GroundParams params;
+    const std::optional<Plane> plane = fitGroundPlane(depth, g.working, params);
+    if (!plane) return;
+    ground = planePixels(depth, g.working, *plane, params.max_range_m, params.inlier_threshold_m);
+    ground_band =
+        planePixels(depth, g.working, *plane, kObjectGroundRangeM, kObjectGroundThresholdM);
   };
   const auto ground_moves = [&](const cv::Mat& instance) {
     if (p.motion_ground_max_moving >= 1 || depth.empty() || cv::countNonZero(instance) == 0)
@@ -640,15 +645,10 @@ void Tracker::Impl::segmentMotion(const KeyframeData& ref, int64_t frame_index,
       segmented_class.release();
       moving.release();
     } else {
-      // What lies on the ground is the objects' static parent, not theirs: DIS smooths an
-      // object's flow across its lower edge onto the road, a band the objects' points and the
-      // published mask leave out (within 4 cm of the plane; 8 cm took more of a door that ends
-      // 5 mm above the floor). Camera tracking keeps it out too: its flow is the object's.
-      constexpr double kObjectGroundRangeM = 40, kObjectGroundThresholdM = 0.04;
-      if (!depth.empty()) find_ground();
-      if (ground_plane)
-        instance.setTo(0, planePixels(depth, g.working, *ground_plane, kObjectGroundRangeM,
-                                      kObjectGroundThresholdM));
+      // The ground band leaves the objects' points and the published mask; camera tracking
+      // keeps it out too, since its flow is the object's.
+      find_ground();
+      if (!ground_band.empty()) instance.setTo(0, ground_band);
       segmented_instance = instance;
       segmented_class = cv::Mat(instance.size(), CV_16UC1, cv::Scalar(0));
       segmented_class.setTo(cv::Scalar(p.motion_class_id), instance > 0);
