@@ -129,6 +129,9 @@ struct Correspondences {
   cv::Mat weight;             // kFlowWeightType grid size: Sigma^-1 (1/grid px^2) of (u, v)
   double valid_fraction = 0;  // pixels with weight > 0
   double median_fb_px = 0;    // median over valid cells of e_fb (grid px)
+  // CV_8UC1 grid, 255 where the refinement's start check dropped a cell the flow found
+  // (RefineOptions::start_check_px); empty when the check is off.
+  cv::Mat leaning;
 };
 
 /// Grid correspondences a -> b from the forward flow (a -> b) and, when not empty, the

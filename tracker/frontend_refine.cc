@@ -99,7 +99,7 @@ void refineAffine(const cv::Mat& grey_b_float, int side, int xa, int ya, const f
 
 int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::Mat& grey_b,
                   int cell, const RefineOptions& options, cv::Mat* target, cv::Mat* weight,
-                  const cv::Mat& moving_a) {
+                  const cv::Mat& moving_a, cv::Mat* leaning) {
   CV_Assert(grey_a.type() == CV_8UC1 && grey_b.type() == CV_8UC1 &&
             grey_a.size() == grey_b.size() && gradients_a.type() == CV_32FC2 &&
             gradients_a.size() == grey_a.size() && cell >= 1);
@@ -128,6 +128,7 @@ int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::M
   const Row gx_row(gxs.data(), n), gy_row(gys.data(), n), used_row(used.data(), n),
       r(residual.data(), n);
   const bool offset = options.brightness_offset;
+  if (leaning) *leaning = cv::Mat::zeros(target->size(), CV_8UC1);
   int refined = 0;
   for (int v = 0; v < target->rows; ++v) {
     cv::Vec2f* t = target->ptr<cv::Vec2f>(v);
@@ -176,32 +177,46 @@ int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::M
       const Eigen::Matrix3d Hinv = Hm.inverse();
       // Displacement of the cell (working px) from its grid target.
       const float dx0 = cell * (t[u][0] - u), dy0 = cell * (t[u][1] - v);
-      float dx = dx0, dy = dy0;
-      bool ok = true;
-      for (int it = 0; it < options.iterations && ok; ++it) {
-        // A translation: every pixel of the window shares the bilinear weights.
-        const float xs = xa + dx, ys = ya + dy;
-        if (!(xs >= 0 && ys >= 0 && xs + side - 1 <= W - 1 && ys + side - 1 <= H - 1)) {
-          ok = false;
-          break;
+      // Translation Lucas-Kanade from (*dx, *dy); false when the window leaves b.
+      const auto translate = [&](int iterations, float* dx, float* dy) {
+        for (int it = 0; it < iterations; ++it) {
+          // A translation: every pixel of the window shares the bilinear weights.
+          const float xs = xa + *dx, ys = ya + *dy;
+          if (!(xs >= 0 && ys >= 0 && xs + side - 1 <= W - 1 && ys + side - 1 <= H - 1)) {
+            return false;
+          }
+          const int x0 = std::min(static_cast<int>(xs), W - side - 1);
+          const int y0 = std::min(static_cast<int>(ys), H - side - 1);
+          const float ax = xs - x0, ay = ys - y0;
+          const float w00 = (1 - ax) * (1 - ay), w01 = ax * (1 - ay), w10 = (1 - ax) * ay,
+                      w11 = ax * ay;
+          const float* p = grey_b_float.ptr<float>(y0) + x0;
+          const Eigen::OuterStride<> stride(step_b);
+          Window(residual.data(), side, side) =
+              w00 * Block(p, side, side, stride) + w01 * Block(p + 1, side, side, stride) +
+              w10 * Block(p + step_b, side, side, stride) +
+              w11 * Block(p + step_b + 1, side, side, stride) - ia_window;
+          const float b0 = (gx_row * r).sum(), b1 = (gy_row * r).sum();
+          const float b2 = offset ? (used_row * r).sum() : 0.f;
+          const Eigen::Vector3d step = Hinv * Eigen::Vector3d(b0, b1, b2);
+          *dx -= static_cast<float>(step(0));
+          *dy -= static_cast<float>(step(1));
+          if (step.head<2>().squaredNorm() < options.converged_px * options.converged_px) break;
         }
-        const int x0 = std::min(static_cast<int>(xs), W - side - 1);
-        const int y0 = std::min(static_cast<int>(ys), H - side - 1);
-        const float ax = xs - x0, ay = ys - y0;
-        const float w00 = (1 - ax) * (1 - ay), w01 = ax * (1 - ay), w10 = (1 - ax) * ay,
-                    w11 = ax * ay;
-        const float* p = grey_b_float.ptr<float>(y0) + x0;
-        const Eigen::OuterStride<> stride(step_b);
-        Window(residual.data(), side, side) =
-            w00 * Block(p, side, side, stride) + w01 * Block(p + 1, side, side, stride) +
-            w10 * Block(p + step_b, side, side, stride) +
-            w11 * Block(p + step_b + 1, side, side, stride) - ia_window;
-        const float b0 = (gx_row * r).sum(), b1 = (gy_row * r).sum();
-        const float b2 = offset ? (used_row * r).sum() : 0.f;
-        const Eigen::Vector3d step = Hinv * Eigen::Vector3d(b0, b1, b2);
-        dx -= static_cast<float>(step(0));
-        dy -= static_cast<float>(step(1));
-        if (step.head<2>().squaredNorm() < options.converged_px * options.converged_px) break;
+        return true;
+      };
+      float dx = dx0, dy = dy0;
+      bool ok = translate(options.iterations, &dx, &dy);
+      bool leans = false;
+      if (ok && options.start_check_px > 0) {
+        // The same cell from further along its flow must end where the first run did.
+        const float length = std::hypot(dx0, dy0);
+        const float along = static_cast<float>(options.start_check_px);
+        float cx = dx0 + (length > 1e-3f ? along * dx0 / length : along);
+        float cy = dy0 + (length > 1e-3f ? along * dy0 / length : 0.f);
+        const float tolerance = static_cast<float>(options.start_check_tolerance_px);
+        leans = !translate(options.start_check_iterations, &cx, &cy) ||
+                (cx - dx) * (cx - dx) + (cy - dy) * (cy - dy) > tolerance * tolerance;
       }
       if (ok && options.affine_iterations > 0) {
         refineAffine(grey_b_float, side, xa, ya, ia.data(), gxs.data(), gys.data(), used.data(),
@@ -213,6 +228,11 @@ int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::M
         continue;
       }
       t[u] = cv::Vec2f(u + dx / cell, v + dy / cell);
+      if (leans) {
+        w[u] = cv::Vec3f(0, 0, 0);
+        if (leaning) leaning->at<uint8_t>(v, u) = 255;
+        continue;
+      }
       ++refined;
     }
   }

@@ -32,6 +32,13 @@ struct RefineOptions {
   // translation measured the forward flow of a road ahead short). 4 iterations take about
   // 3.4x the time of the whole translation on a 512x384 street pair (docs/tracker.md).
   int affine_iterations = 0;
+  // Start check (0 = off): the translation is run again from start_check_px further along the
+  // cell's start flow (start_check_iterations iterations); a cell whose two runs end more than
+  // start_check_tolerance_px apart leans on where it starts and fails. DIS's flow is short
+  // where it varies, and such a cell keeps part of that shortfall (docs/tracker.md, step 2).
+  double start_check_px = 0;              // working px
+  double start_check_tolerance_px = 0.3;  // working px
+  int start_check_iterations = 8;
 };
 
 /// Gradients of a grey image for refinement: Sobel / 8 (grey levels per px), CV_32FC2 (gx, gy).
@@ -43,9 +50,10 @@ cv::Mat imageGradients(const cv::Mat& grey);
 /// gets weight 0 (its correspondence is not reliable). grey_a, grey_b: CV_8UC1 of one size,
 /// cell x the grid size; gradients_a from imageGradients(grey_a). Returns the cells refined.
 /// moving_a (CV_8UC1 of a's size, non-zero = moving object; empty = none): pixels left out of
-/// the cells' windows.
+/// the cells' windows. A cell that fails the start check gets its refined target and weight 0,
+/// and 255 in `leaning` (CV_8UC1 grid) when given.
 int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::Mat& grey_b,
                   int cell, const RefineOptions& options, cv::Mat* target, cv::Mat* weight,
-                  const cv::Mat& moving_a = {});
+                  const cv::Mat& moving_a = {}, cv::Mat* leaning = nullptr);
 
 }  // namespace radslam

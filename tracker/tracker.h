@@ -93,6 +93,17 @@ struct TrackerParams {
   int refine_iterations = 4;             // 0 = off
   double refine_max_shift_px = 3.0;      // working px from the DIS target; further: weight 0
   bool refine_brightness_offset = true;  // per-cell offset (auto-exposure)
+  // Start check (RefineOptions::start_check_px, working px; 0 = off): a cell refined again
+  // from this far along its flow must end within the tolerance of the first run, or it is
+  // left out. RGB-D and stereo: on the flows of frames to their keyframe and the left-right
+  // flow; stereo also on the keyframe pairs, where it halves the synthetic streets' ATE (RGB-D's
+  // pairs do better with the affine step, rgbd_pair_affine_iterations). Monocular: off, the
+  // synthetic room's monocular run lost its way with it (docs/tracker.md, step 2).
+  double mono_start_check_px = 0;
+  double metric_start_check_px = 1.0;
+  double stereo_pair_start_check_px = 1.0;
+  double refine_start_check_tolerance_px = 0.3;
+  int refine_start_check_iterations = 8;
   // RGB-D: affine Lucas-Kanade iterations after the translation on the keyframe pairs BA
   // re-measures (RefineOptions::affine_iterations; 0 = none). The sensor prior fixes the scale,
   // so a flow measured short becomes a trajectory too short.

@@ -81,6 +81,11 @@ void validateTrackerParams(const TrackerParams& p) {
   check(p.refine_iterations >= 0 && p.refine_max_shift_px > 0,
         "refine_iterations >= 0, refine_max_shift_px > 0");
   check(p.rgbd_pair_affine_iterations >= 0, "rgbd_pair_affine_iterations >= 0");
+  check(p.mono_start_check_px >= 0 && p.metric_start_check_px >= 0 &&
+            p.stereo_pair_start_check_px >= 0 && p.refine_start_check_tolerance_px > 0 &&
+            p.refine_start_check_iterations >= 1,
+        "mono_start_check_px, metric_start_check_px and stereo_pair_start_check_px >= 0, "
+        "refine_start_check_tolerance_px > 0, refine_start_check_iterations >= 1");
   check(p.keyframe_flow_px > 0, "keyframe_flow_px must be > 0");
   check(p.mono_keyframe_flow_px > 0, "mono_keyframe_flow_px must be > 0");
   check(p.keyframe_rotation_px > 0, "keyframe_rotation_px must be > 0");
@@ -190,6 +195,11 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("refine_iterations", &p.refine_iterations);
   r.get("refine_max_shift_px", &p.refine_max_shift_px);
   r.get("refine_brightness_offset", &p.refine_brightness_offset);
+  r.get("mono_start_check_px", &p.mono_start_check_px);
+  r.get("metric_start_check_px", &p.metric_start_check_px);
+  r.get("stereo_pair_start_check_px", &p.stereo_pair_start_check_px);
+  r.get("refine_start_check_tolerance_px", &p.refine_start_check_tolerance_px);
+  r.get("refine_start_check_iterations", &p.refine_start_check_iterations);
   r.get("rgbd_pair_affine_iterations", &p.rgbd_pair_affine_iterations);
   r.get("keyframe_flow_px", &p.keyframe_flow_px);
   r.get("mono_keyframe_flow_px", &p.mono_keyframe_flow_px);

@@ -511,6 +511,55 @@ TEST(Flow, AffineRefinementFollowsATurningZoom) {
   EXPECT_LT(affine, 0.06) << "working px";
 }
 
+TEST(Flow, StartCheckDropsTheCellsThatLeanOnTheirStart) {
+  // b is a shifted 2 px right. Each cell starts 0 to 2 px short of that and gets one
+  // Lucas-Kanade iteration, which leaves the cells that start far off short of the truth, by
+  // a share of where they started. The start check, run from 1 px further along, finds them.
+  const cv::Size size(128, 96);
+  const cv::Mat a = texture(size, 3);
+  const cv::Mat shift = (cv::Mat_<double>(2, 3) << 1, 0, 2, 0, 1, 0);
+  cv::Mat b;
+  cv::warpAffine(a, b, shift, size, cv::INTER_NEAREST, cv::BORDER_REFLECT);
+  struct Result {
+    int kept = 0, cells = 0;
+    double max_error = 0;  // working px, over the kept cells
+  };
+  auto refine = [&](double start_check_px) {
+    cv::Mat target(size.height / kCell, size.width / kCell, CV_32FC2);
+    cv::Mat weight(target.size(), kFlowWeightType, cv::Scalar(1, 0, 1));
+    cv::RNG rng(7);
+    for (int v = 0; v < target.rows; ++v)
+      for (int u = 0; u < target.cols; ++u)
+        target.at<cv::Vec2f>(v, u) = cv::Vec2f(u + rng.uniform(0.f, 2.f) / kCell, v);
+    RefineOptions options;
+    options.iterations = 1;
+    options.start_check_px = start_check_px;
+    refineTargets(a, imageGradients(a), b, kCell, options, &target, &weight);
+    Result r;
+    for (int v = 1; v < target.rows - 1; ++v) {
+      for (int u = 1; u < target.cols - 1; ++u) {
+        ++r.cells;
+        if (!(weight.at<cv::Vec3f>(v, u)[0] > 0)) continue;
+        ++r.kept;
+        const cv::Vec2f t = target.at<cv::Vec2f>(v, u);
+        r.max_error =
+            std::max<double>(r.max_error, std::hypot(kCell * (t[0] - u) - 2.0, kCell * (t[1] - v)));
+      }
+    }
+    return r;
+  };
+  const Result off = refine(0), on = refine(1.0);
+  RecordProperty("kept_with_check", on.kept);
+  RecordProperty("cells", on.cells);
+  EXPECT_EQ(off.kept, off.cells);
+  EXPECT_GT(off.max_error, 0.5) << "working px";
+  // The kept cells are within the tolerance (0.3 px) of the truth, which the check's
+  // 8 iterations reach.
+  EXPECT_LT(on.max_error, 0.32) << "working px";
+  EXPECT_GT(on.kept, on.cells / 4);
+  EXPECT_LT(on.kept, on.cells);
+}
+
 // Forward along the noise-free street with the true depth on each keyframe's grid: the
 // translation of a frame aligned motion-only against the keyframe comes out short with
 // translation-only refinement (the road's flow grows across each cell, and a translation
