@@ -199,16 +199,18 @@ void validateFrame(const Frame& frame) {
 namespace {
 
 FlowMotion flowMotion(const cv::Mat& target, const cv::Mat& weight, const CameraModel* grid,
-                      const Mat3& R_b_a) {
+                      const Mat3& R_b_a, const cv::Mat& leaning) {
   CV_Assert(target.type() == CV_32FC2 && weight.type() == kFlowWeightType &&
             target.size() == weight.size());
+  CV_Assert(leaning.empty() || (leaning.type() == CV_8UC1 && leaning.size() == target.size()));
   double sum = 0, sum_rotation = 0, sum_parallax = 0;
   int n = 0;
   for (int v = 0; v < target.rows; ++v) {
     const cv::Vec2f* t = target.ptr<cv::Vec2f>(v);
     const cv::Vec3f* w = weight.ptr<cv::Vec3f>(v);
+    const uint8_t* l = leaning.empty() ? nullptr : leaning.ptr<uint8_t>(v);
     for (int u = 0; u < target.cols; ++u) {
-      if (!(w[u][0] > 0 || w[u][2] > 0)) continue;
+      if (!(w[u][0] > 0 || w[u][2] > 0 || (l && l[u]))) continue;
       const double du = t[u][0] - u, dv = t[u][1] - v;
       if (!std::isfinite(du) || !std::isfinite(dv)) continue;
       sum += std::sqrt(du * du + dv * dv);
@@ -237,12 +239,12 @@ FlowMotion flowMotion(const cv::Mat& target, const cv::Mat& weight, const Camera
 }  // namespace
 
 FlowMotion measureFlowMotion(const cv::Mat& target, const cv::Mat& weight) {
-  return flowMotion(target, weight, nullptr, Mat3::Identity());
+  return flowMotion(target, weight, nullptr, Mat3::Identity(), cv::Mat());
 }
 
 FlowMotion measureFlowMotion(const cv::Mat& target, const cv::Mat& weight, const CameraModel& grid,
-                             const Mat3& R_b_a) {
-  return flowMotion(target, weight, &grid, R_b_a);
+                             const Mat3& R_b_a, const cv::Mat& leaning) {
+  return flowMotion(target, weight, &grid, R_b_a, leaning);
 }
 
 bool isNewKeyframe(const FlowMotion& m, const KeyframePolicy& policy) {

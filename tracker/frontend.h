@@ -113,7 +113,8 @@ void validateFrame(const Frame& frame);
 /// the fraction of such pixels (DROID-SLAM's motion filter). The second form also splits the
 /// displacement with the relative rotation R_b_a of the two views: the part a pure rotation
 /// would cause, |Pi(R_b_a Pi^-1(p)) - p|, and the parallax left, |target(p) - Pi(R_b_a Pi^-1(p))|
-/// (translation); only parallax conditions the depths and the baseline.
+/// (translation); only parallax conditions the depths and the baseline. Cells marked in
+/// `leaning` (Correspondences::leaning) count as well: the flow found them.
 struct FlowMotion {
   double mean_flow_px = 0;       // grid px
   double valid_fraction = 0;     // [0, 1]
@@ -122,7 +123,7 @@ struct FlowMotion {
 };
 FlowMotion measureFlowMotion(const cv::Mat& target, const cv::Mat& weight);
 FlowMotion measureFlowMotion(const cv::Mat& target, const cv::Mat& weight, const CameraModel& grid,
-                             const Mat3& R_b_a);
+                             const Mat3& R_b_a, const cv::Mat& leaning = {});
 
 struct KeyframePolicy {
   double flow_px = 2.5;      // grid px: mean parallax (mean flow when the split is not measured)

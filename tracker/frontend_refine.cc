@@ -218,7 +218,7 @@ int refineTargets(const cv::Mat& grey_a, const cv::Mat& gradients_a, const cv::M
         leans = !translate(options.start_check_iterations, &cx, &cy) ||
                 (cx - dx) * (cx - dx) + (cy - dy) * (cy - dy) > tolerance * tolerance;
       }
-      if (ok && options.affine_iterations > 0) {
+      if (ok && !leans && options.affine_iterations > 0) {
         refineAffine(grey_b_float, side, xa, ya, ia.data(), gxs.data(), gys.data(), used.data(),
                      offset, options, &descent, residual.data(), &dx, &dy);
       }

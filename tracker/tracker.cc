@@ -429,12 +429,7 @@ void Tracker::Impl::track(const Frame& frame, const PreparedImage& image, Tracke
   const Mat3 R_frame_kf = (aligned.T_world_frame.inverse() * ref.ba.T_world_cam).rotation();
   // The keyframe policy counts what the flow found, also the cells that the refinement's start
   // check keeps out of the estimate (without them fr1/rpy RGB-D made 40 keyframes, not 29).
-  cv::Mat tracked_weight = c.weight;
-  if (!c.leaning.empty() && cv::countNonZero(c.leaning) > 0) {
-    tracked_weight = c.weight.clone();
-    tracked_weight.setTo(cv::Scalar(1, 0, 1), c.leaning);
-  }
-  const FlowMotion motion = measureFlowMotion(c.target, tracked_weight, g.grid, R_frame_kf);
+  const FlowMotion motion = measureFlowMotion(c.target, c.weight, g.grid, R_frame_kf, c.leaning);
   stats.mean_flow_px = motion.mean_flow_px;
   stats.mean_parallax_px = motion.mean_parallax_px;
   stats.alignment_deg = (T_pred.inverse() * aligned.T_world_frame).so3().log().norm() * 180 / M_PI;
