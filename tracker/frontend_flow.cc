@@ -99,6 +99,37 @@ cv::Mat DenseFlow::compute(const cv::Mat& grey_a, const cv::Mat& grey_b, const c
   return residual + init_at_target;
 }
 
+std::pair<cv::Mat, cv::Mat> paintOutMoving(const cv::Mat& grey_a, const cv::Mat& moving_a,
+                                           const cv::Mat& grey_b, const cv::Mat& moving_b,
+                                           const cv::Mat& flow_ab, const cv::Mat& flow_ba) {
+  if ((moving_a.empty() && moving_b.empty()) || flow_ab.empty() || flow_ba.empty())
+    return {grey_a, grey_b};
+  CV_Assert(grey_a.type() == CV_8UC1 && grey_b.type() == CV_8UC1 && grey_a.size() == grey_b.size());
+  CV_Assert(flow_ab.type() == CV_32FC2 && flow_ab.size() == grey_a.size() &&
+            flow_ba.type() == CV_32FC2 && flow_ba.size() == grey_a.size());
+  // b first: an object that keeps its place in the image (a car ahead driving with the camera)
+  // then shows a's view of it carried by the static flow, in both images.
+  cv::Mat painted_b = grey_b;
+  if (!moving_b.empty()) {
+    CV_Assert(moving_b.type() == CV_8UC1 && moving_b.size() == grey_b.size());
+    cv::Mat from_a;
+    cv::remap(grey_a, from_a, flowTargetMap(flow_ba), cv::noArray(), cv::INTER_LINEAR,
+              cv::BORDER_REPLICATE);
+    painted_b = grey_b.clone();
+    from_a.copyTo(painted_b, moving_b);
+  }
+  cv::Mat painted_a = grey_a;
+  if (!moving_a.empty()) {
+    CV_Assert(moving_a.type() == CV_8UC1 && moving_a.size() == grey_a.size());
+    cv::Mat from_b;
+    cv::remap(painted_b, from_b, flowTargetMap(flow_ab), cv::noArray(), cv::INTER_LINEAR,
+              cv::BORDER_REPLICATE);
+    painted_a = grey_a.clone();
+    from_b.copyTo(painted_a, moving_a);
+  }
+  return {painted_a, painted_b};
+}
+
 cv::Mat wideGaussianBlur(const cv::Mat& field, double sigma_px) {
   CV_Assert(sigma_px > 0 && !field.empty());
   const int k = std::clamp(static_cast<int>(sigma_px / 3), 1, 4);

@@ -30,6 +30,7 @@
 #pragma once
 
 #include <string>
+#include <utility>
 
 #include <opencv2/core.hpp>
 #include <opencv2/video/tracking.hpp>
@@ -108,6 +109,18 @@ class DenseFlow {
 /// x + flow(x) per pixel (CV_32FC2), the map cv::remap takes; a non-finite flow maps far
 /// outside the image (remap then gives the border value). flow: CV_32FC2.
 cv::Mat flowTargetMap(const cv::Mat& flow);
+
+/// The grey images a and b for DIS with their moving pixels painted over by the static scene:
+/// b's take a's grey where the static backward flow flow_ba sends them, then a's take that
+/// painted b's grey where the static forward flow flow_ab sends them. An object then moves with
+/// the static scene as far as DIS can tell; left in, its motion spreads over the static pixels
+/// around it through DIS's patches, up to a patch at its coarsest level. Only DIS sees the
+/// painted images: the moving pixels stay out of every correspondence. Returns a and b
+/// themselves when neither has a mask or a flow is empty. grey: CV_8UC1; moving: CV_8UC1 (255 =
+/// moving) or empty; flows: CV_32FC2 (working px), all of one size.
+std::pair<cv::Mat, cv::Mat> paintOutMoving(const cv::Mat& grey_a, const cv::Mat& moving_a,
+                                           const cv::Mat& grey_b, const cv::Mat& moving_b,
+                                           const cv::Mat& flow_ab, const cv::Mat& flow_ba);
 
 /// Gaussian blur (sigma_px, reflected border) of a smooth field such as a predicted flow, at a
 /// fraction of cv::GaussianBlur's cost for a wide sigma: the field is padded, averaged over k x k

@@ -379,13 +379,18 @@ void Tracker::Impl::track(const Frame& frame, const PreparedImage& image, Tracke
   const auto t_flow = Clock::now();
   const cv::Mat predicted = reprojectKeyframe(g.grid, ref.ba, T_pred, p.min_depth_ratio);
   const cv::Mat init = predictedFlow(predicted, g);
-  const cv::Mat forward = flow.compute(ref.grey, image.grey, init, frame_warm_start);
+  // The frame has no depth to predict the backward flow: the negated forward prediction is
+  // close wherever the flow is smooth.
+  const cv::Mat init_back = init.empty() ? cv::Mat() : cv::Mat(-init);
+  // Motion segmentation judges this flow (against its keyframe's own segmented objects too),
+  // so there it must show the objects move.
+  const bool judged = segmenter && image.class_id.empty();
+  const auto [dis_ref, dis_frame] =
+      judged ? std::make_pair(ref.grey, image.grey)
+             : paintOutMoving(ref.grey, ref.moving, image.grey, moving, init, init_back);
+  const cv::Mat forward = flow.compute(dis_ref, dis_frame, init, frame_warm_start);
   cv::Mat backward;
-  if (p.frame_backward_flow) {
-    // The frame has no depth to predict the backward flow: the negated forward prediction is
-    // close wherever the flow is smooth.
-    backward = flow.compute(image.grey, ref.grey, init.empty() ? cv::Mat() : cv::Mat(-init));
-  }
+  if (p.frame_backward_flow) backward = flow.compute(dis_frame, dis_ref, init_back);
   TrackedFlow tracked;
   tracked.forward = forward;
   tracked.backward = backward;
@@ -869,8 +874,10 @@ std::pair<Correspondences, Correspondences> Tracker::Impl::measureBothWays(int a
       predictedFlow(reprojectKeyframe(g.grid, ka.ba, kb.ba.T_world_cam, p.min_depth_ratio), g);
   const cv::Mat init_ba =
       predictedFlow(reprojectKeyframe(g.grid, kb.ba, ka.ba.T_world_cam, p.min_depth_ratio), g);
-  const cv::Mat f_ab = flow.compute(ka.grey, kb.grey, init_ab, warm_start);
-  const cv::Mat f_ba = flow.compute(kb.grey, ka.grey, init_ba, warm_start);
+  const auto [dis_a, dis_b] =
+      paintOutMoving(ka.grey, ka.moving, kb.grey, kb.moving, init_ab, init_ba);
+  const cv::Mat f_ab = flow.compute(dis_a, dis_b, init_ab, warm_start);
+  const cv::Mat f_ba = flow.compute(dis_b, dis_a, init_ba, warm_start);
   // A keyframe outside the window keeps only its grey image and structure tensor.
   auto gradients = [](const KeyframeData& k) {
     return k.gradients.empty() ? imageGradients(k.grey) : k.gradients;

@@ -330,6 +330,57 @@ OcclusionPair makeOcclusionPair() {
   return p;
 }
 
+// The background moves 6 px right; a textured square (a car ahead driving with the camera)
+// keeps its place in the image and is masked as moving in both images.
+TEST(Flow, PaintingOutTheMovingObjectKeepsItsMotionOffTheStaticPixelsAroundIt) {
+  const cv::Size size(256, 192);
+  const int shift = 6;
+  const cv::Mat bg = texture(cv::Size(size.width + 64, size.height + 64), 1);
+  const cv::Mat fg = texture(cv::Size(80, 80), 2);
+  const cv::Rect square(88, 56, 80, 80);
+  cv::Mat a = bg(cv::Rect(32, 32, size.width, size.height)).clone();
+  cv::Mat b = bg(cv::Rect(32 - shift, 32, size.width, size.height)).clone();
+  fg.copyTo(a(square));
+  fg.copyTo(b(square));
+  cv::Mat moving(size, CV_8UC1, cv::Scalar(0));
+  moving(square).setTo(255);
+  const cv::Mat static_ab(size, CV_32FC2, cv::Scalar(shift, 0));
+  const cv::Mat static_ba(size, CV_32FC2, cv::Scalar(-shift, 0));
+
+  const auto [painted_a, painted_b] = paintOutMoving(a, moving, b, moving, static_ab, static_ba);
+  // Unmasked pixels are untouched; masked ones follow the static motion from one image to the
+  // other (exactly, for a whole-pixel shift away from the border).
+  EXPECT_EQ(cv::norm(painted_a, a, cv::NORM_INF, ~moving), 0);
+  EXPECT_EQ(cv::norm(painted_b, b, cv::NORM_INF, ~moving), 0);
+  const cv::Rect inner(square.x + shift, square.y, square.width - shift, square.height);
+  EXPECT_EQ(cv::norm(painted_a(inner - cv::Point(shift, 0)), painted_b(inner), cv::NORM_INF), 0);
+  // Without masks or a predicted flow the images are returned as they are.
+  EXPECT_EQ(paintOutMoving(a, cv::Mat(), b, cv::Mat(), static_ab, static_ba).first.data, a.data);
+  EXPECT_EQ(paintOutMoving(a, moving, b, moving, cv::Mat(), static_ba).second.data, b.data);
+
+  // The flow of the static pixels 4-32 px from the square (its mask grown by 3 px is what the
+  // tracker leaves out), a -> b.
+  cv::Mat ring(size, CV_8UC1, cv::Scalar(0));
+  ring(cv::Rect(square.x - 32, square.y - 32, square.width + 64, square.height + 64)).setTo(255);
+  ring(cv::Rect(square.x - 4, square.y - 4, square.width + 8, square.height + 8)).setTo(0);
+  const auto ring_error = [&](const cv::Mat& dis_a, const cv::Mat& dis_b) {
+    DenseFlow flow{FlowOptions()};
+    const cv::Mat f = flow.compute(dis_a, dis_b);
+    std::vector<double> errors;
+    for (int y = 0; y < size.height; ++y) {
+      for (int x = 0; x < size.width; ++x) {
+        if (!ring.at<uint8_t>(y, x)) continue;
+        const cv::Vec2f v = f.at<cv::Vec2f>(y, x);
+        errors.push_back(std::hypot(v[0] - shift, v[1]));
+      }
+    }
+    return quantile(errors, 0.9);
+  };
+  const double plain = ring_error(a, b), painted = ring_error(painted_a, painted_b);
+  EXPECT_GT(plain, 0.6) << "the square's zero flow spreads over the ring";
+  EXPECT_LT(painted, 0.25) << "plain " << plain;
+}
+
 TEST(Flow, ForwardBackwardFailureLowersConfidence) {
   const OcclusionPair p = makeOcclusionPair();
   const GridGeometry g = makeGridGeometry(pinhole(256, 192, 200), kCell);
