@@ -99,6 +99,24 @@ cv::Mat DenseFlow::compute(const cv::Mat& grey_a, const cv::Mat& grey_b, const c
   return residual + init_at_target;
 }
 
+namespace {
+
+/// grey with its moving pixels taken from source where flow sends them; grey itself without a
+/// mask.
+cv::Mat paintFrom(const cv::Mat& grey, const cv::Mat& moving, const cv::Mat& source,
+                  const cv::Mat& flow) {
+  if (moving.empty()) return grey;
+  CV_Assert(moving.type() == CV_8UC1 && moving.size() == grey.size());
+  cv::Mat sampled;
+  cv::remap(source, sampled, flowTargetMap(flow), cv::noArray(), cv::INTER_LINEAR,
+            cv::BORDER_REPLICATE);
+  cv::Mat painted = grey.clone();
+  sampled.copyTo(painted, moving);
+  return painted;
+}
+
+}  // namespace
+
 std::pair<cv::Mat, cv::Mat> paintOutMoving(const cv::Mat& grey_a, const cv::Mat& moving_a,
                                            const cv::Mat& grey_b, const cv::Mat& moving_b,
                                            const cv::Mat& flow_ab, const cv::Mat& flow_ba) {
@@ -109,25 +127,8 @@ std::pair<cv::Mat, cv::Mat> paintOutMoving(const cv::Mat& grey_a, const cv::Mat&
             flow_ba.type() == CV_32FC2 && flow_ba.size() == grey_a.size());
   // b first: an object that keeps its place in the image (a car ahead driving with the camera)
   // then shows a's view of it carried by the static flow, in both images.
-  cv::Mat painted_b = grey_b;
-  if (!moving_b.empty()) {
-    CV_Assert(moving_b.type() == CV_8UC1 && moving_b.size() == grey_b.size());
-    cv::Mat from_a;
-    cv::remap(grey_a, from_a, flowTargetMap(flow_ba), cv::noArray(), cv::INTER_LINEAR,
-              cv::BORDER_REPLICATE);
-    painted_b = grey_b.clone();
-    from_a.copyTo(painted_b, moving_b);
-  }
-  cv::Mat painted_a = grey_a;
-  if (!moving_a.empty()) {
-    CV_Assert(moving_a.type() == CV_8UC1 && moving_a.size() == grey_a.size());
-    cv::Mat from_b;
-    cv::remap(painted_b, from_b, flowTargetMap(flow_ab), cv::noArray(), cv::INTER_LINEAR,
-              cv::BORDER_REPLICATE);
-    painted_a = grey_a.clone();
-    from_b.copyTo(painted_a, moving_a);
-  }
-  return {painted_a, painted_b};
+  const cv::Mat painted_b = paintFrom(grey_b, moving_b, grey_a, flow_ba);
+  return {paintFrom(grey_a, moving_a, painted_b, flow_ab), painted_b};
 }
 
 cv::Mat wideGaussianBlur(const cv::Mat& field, double sigma_px) {
