@@ -26,15 +26,16 @@ int presetOf(const std::string& name) {
 
 }  // namespace
 
-cv::Mat flowTargetMap(const cv::Mat& flow) {
+cv::Mat flowTargetMap(const cv::Mat& flow, cv::Point origin) {
   CV_Assert(flow.type() == CV_32FC2);
   cv::Mat map(flow.size(), CV_32FC2);
   for (int y = 0; y < flow.rows; ++y) {
     const cv::Vec2f* f = flow.ptr<cv::Vec2f>(y);
     cv::Vec2f* m = map.ptr<cv::Vec2f>(y);
+    const float yf = static_cast<float>(y + origin.y);
     for (int x = 0; x < flow.cols; ++x) {
       const bool known = std::isfinite(f[x][0]) && std::isfinite(f[x][1]);
-      m[x] = known ? cv::Vec2f(static_cast<float>(x) + f[x][0], static_cast<float>(y) + f[x][1])
+      m[x] = known ? cv::Vec2f(static_cast<float>(x + origin.x) + f[x][0], yf + f[x][1])
                    : cv::Vec2f(-1e4f, -1e4f);
     }
   }
@@ -107,11 +108,14 @@ cv::Mat paintFrom(const cv::Mat& grey, const cv::Mat& moving, const cv::Mat& sou
                   const cv::Mat& flow) {
   if (moving.empty()) return grey;
   CV_Assert(moving.type() == CV_8UC1 && moving.size() == grey.size());
+  // Only the mask's bounding box is sampled: objects cover a small part of most frames.
+  const cv::Rect box = cv::boundingRect(moving);
+  if (box.empty()) return grey;
   cv::Mat sampled;
-  cv::remap(source, sampled, flowTargetMap(flow), cv::noArray(), cv::INTER_LINEAR,
+  cv::remap(source, sampled, flowTargetMap(flow(box), box.tl()), cv::noArray(), cv::INTER_LINEAR,
             cv::BORDER_REPLICATE);
   cv::Mat painted = grey.clone();
-  sampled.copyTo(painted, moving);
+  sampled.copyTo(painted(box), moving(box));
   return painted;
 }
 

@@ -107,8 +107,9 @@ class DenseFlow {
 };
 
 /// x + flow(x) per pixel (CV_32FC2), the map cv::remap takes; a non-finite flow maps far
-/// outside the image (remap then gives the border value). flow: CV_32FC2.
-cv::Mat flowTargetMap(const cv::Mat& flow);
+/// outside the image (remap then gives the border value). flow: CV_32FC2, the part of a field
+/// whose top-left pixel is at `origin`.
+cv::Mat flowTargetMap(const cv::Mat& flow, cv::Point origin = {});
 
 /// The grey images a and b for DIS with their moving pixels painted over by the static scene:
 /// b's take a's grey where the static backward flow flow_ba sends them, then a's take that

@@ -382,12 +382,12 @@ void Tracker::Impl::track(const Frame& frame, const PreparedImage& image, Tracke
   // The frame has no depth to predict the backward flow: the negated forward prediction is
   // close wherever the flow is smooth.
   const cv::Mat init_back = init.empty() ? cv::Mat() : cv::Mat(-init);
-  // Motion segmentation judges this flow (against its keyframe's own segmented objects too),
-  // so there it must show the objects move.
-  const bool judged = segmenter && image.class_id.empty();
+  // Without the dataset's masks motion segmentation judges this flow (against its keyframe's
+  // own segmented objects too), so there it must show the objects move.
+  const bool segmenting = segmenter && image.class_id.empty();
   const auto [dis_ref, dis_frame] =
-      judged ? std::make_pair(ref.grey, image.grey)
-             : paintOutMoving(ref.grey, ref.moving, image.grey, moving, init, init_back);
+      segmenting ? std::make_pair(ref.grey, image.grey)
+                 : paintOutMoving(ref.grey, ref.moving, image.grey, moving, init, init_back);
   const cv::Mat forward = flow.compute(dis_ref, dis_frame, init, frame_warm_start);
   cv::Mat backward;
   if (p.frame_backward_flow) backward = flow.compute(dis_frame, dis_ref, init_back);
@@ -428,8 +428,7 @@ void Tracker::Impl::track(const Frame& frame, const PreparedImage& image, Tracke
     return;
   }
   lost_streak = 0;
-  if (segmenter && image.class_id.empty())
-    segmentMotion(ref, frame.frame_index, image, &tracked, &aligned);
+  if (segmenting) segmentMotion(ref, frame.frame_index, image, &tracked, &aligned);
 
   const Mat3 R_frame_kf = (aligned.T_world_frame.inverse() * ref.ba.T_world_cam).rotation();
   // The keyframe policy counts what the flow found, also the cells that the refinement's start
