@@ -171,10 +171,30 @@ cv::Mat landingGreyError(const cv::Mat& grey_a, const cv::Mat& grey_b, const cv:
   return out;
 }
 
+namespace {
+
+// The z-score of the mean of per-pixel z-scores over a (2 radius + 1)^2 window: their sum over
+// the square root of their count; NaN where the pixel itself was not judged.
+cv::Mat windowZScore(const cv::Mat& score, const cv::Mat& judged, int radius) {
+  const cv::Size window(2 * radius + 1, 2 * radius + 1);
+  cv::Mat sum, count;
+  cv::boxFilter(score, sum, -1, window, cv::Point(-1, -1), false, cv::BORDER_CONSTANT);
+  cv::boxFilter(judged, count, -1, window, cv::Point(-1, -1), false, cv::BORDER_CONSTANT);
+  cv::Mat out(score.size(), CV_32FC1, cv::Scalar(NAN));
+  for (int y = 0; y < score.rows; ++y)
+    for (int x = 0; x < score.cols; ++x)
+      if (judged.at<float>(y, x) > 0)
+        out.at<float>(y, x) = sum.at<float>(y, x) / std::sqrt(count.at<float>(y, x));
+  return out;
+}
+
+}  // namespace
+
 cv::Mat depthDisagreement(const cv::Mat& depth_a, const cv::Mat& depth_b, const cv::Mat& grey_a,
                           const cv::Mat& grey_b, const cv::Mat& depth_flow, const SE3& T_b_a,
                           const CameraModel& camera, double sigma_a, double sigma_b,
-                          double sigma_z0, double max_grey_error, int radius) {
+                          double sigma_z0, cv::Mat* occluding_b, double max_grey_error,
+                          int radius) {
   const cv::Size size(camera.width, camera.height);
   CV_Assert(depth_a.type() == CV_32FC1 && depth_b.type() == CV_32FC1 && depth_a.size() == size &&
             depth_b.size() == size);
@@ -208,6 +228,21 @@ cv::Mat depthDisagreement(const cv::Mat& depth_a, const cv::Mat& depth_b, const 
   }
   // One pixel of slack: the splats leave holes that a nearer surface would otherwise fall through.
   cv::erode(z_front, z_front, cv::Mat());
+  // b's depth change around a pixel (a quarter of its range over 5 x 5 px): pose errors on
+  // slanted surfaces and at depth edges. NaN next to a hole.
+  const auto slope_sigma = [&](int xb, int yb) {
+    float lo = INFINITY, hi = 0;
+    for (int dy = -2; dy <= 2; ++dy)
+      for (int dx = -2; dx <= 2; ++dx) {
+        const float z = depth_b.at<float>(yb + dy, xb + dx);
+        lo = std::min(lo, z);
+        hi = std::max(hi, z);
+      }
+    return lo > 0 ? 0.25 * (hi - lo) : NAN;
+  };
+  const auto total_sigma = [&](double z_a, double z_b, double s_px) {
+    return std::sqrt(sigma(z_a) * sigma(z_a) + sigma(z_b) * sigma(z_b) + s_px * s_px);
+  };
   // Per pixel z-score (0 and count 0 where not judged), then window sums.
   cv::Mat score(size, CV_32FC1, cv::Scalar(0)), judged(size, CV_32FC1, cv::Scalar(0));
   for (int y = 0; y < H; ++y) {
@@ -219,38 +254,40 @@ cv::Mat depthDisagreement(const cv::Mat& depth_a, const cv::Mat& depth_b, const 
       // A prediction a pose error moved onto another surface (thin poles) compares other depths.
       const int grey_error = greyErrorNear(grey_a.at<uint8_t>(y, x), grey_b, xb, yb);
       if (grey_error > max_grey_error) continue;
-      float lo = INFINITY, hi = 0;
-      for (int dy = -2; dy <= 2; ++dy)
-        for (int dx = -2; dx <= 2; ++dx) {
-          const float z = depth_b.at<float>(yb + dy, xb + dx);
-          lo = std::min(lo, z);
-          hi = std::max(hi, z);
-        }
-      if (!(lo > 0)) continue;  // a hole next to the landing point
+      const double s_px = slope_sigma(xb, yb);
+      if (std::isnan(s_px)) continue;  // a hole next to the landing point
       const double z_pred = z_static.at<float>(y, x), zb = depth_b.at<float>(yb, xb);
-      const double s_a = sigma(z_pred), s_b = sigma(zb), s_px = 0.25 * (hi - lo);
-      const double s = std::sqrt(s_a * s_a + s_b * s_b + s_px * s_px);
+      const double s = total_sigma(z_pred, zb, s_px);
       // Hidden in b behind another static point of a (the scene occludes it): not judged.
       if (z_pred - z_front.at<float>(yb, xb) > 3 * s) continue;
       score.at<float>(y, x) = static_cast<float>((zb - z_pred) / s);
       judged.at<float>(y, x) = 1;
     }
   }
-  const cv::Size window(2 * radius + 1, 2 * radius + 1);
-  cv::Mat sum, count;
-  cv::boxFilter(score, sum, -1, window, cv::Point(-1, -1), false, cv::BORDER_CONSTANT);
-  cv::boxFilter(judged, count, -1, window, cv::Point(-1, -1), false, cv::BORDER_CONSTANT);
-  cv::Mat out(size, CV_32FC1, cv::Scalar(NAN));
-  for (int y = 0; y < H; ++y)
-    for (int x = 0; x < W; ++x)
-      if (judged.at<float>(y, x) > 0)
-        out.at<float>(y, x) = sum.at<float>(y, x) / std::sqrt(count.at<float>(y, x));
-  return out;
+  if (occluding_b) {
+    // b's pixels nearer than every static point of a that lands on them: something moved in
+    // front (the leading edge of a door swinging towards the camera). No grey check: the
+    // occluder's grey is not the occluded point's.
+    cv::Mat score_b(size, CV_32FC1, cv::Scalar(0)), judged_b(size, CV_32FC1, cv::Scalar(0));
+    for (int yb = 2; yb < H - 2; ++yb) {
+      for (int xb = 2; xb < W - 2; ++xb) {
+        const double front = z_front.at<float>(yb, xb), zb = depth_b.at<float>(yb, xb);
+        if (!std::isfinite(front) || !(zb > 0)) continue;
+        const double s_px = slope_sigma(xb, yb);
+        if (std::isnan(s_px)) continue;
+        score_b.at<float>(yb, xb) = static_cast<float>((front - zb) / total_sigma(front, zb, s_px));
+        judged_b.at<float>(yb, xb) = 1;
+      }
+    }
+    *occluding_b = windowZScore(score_b, judged_b, radius);
+  }
+  return windowZScore(score, judged, radius);
 }
 
 cv::Mat MotionSegmenter::segment(const cv::Mat& measured, const cv::Mat& predicted,
                                  const cv::Mat& depth_flow, const cv::Mat& depth_test,
-                                 const cv::Mat& photo_test, const cv::Mat& carry_error) {
+                                 const cv::Mat& photo_test, const cv::Mat& carry_error,
+                                 const cv::Mat& occluding) {
   CV_Assert(measured.type() == CV_32FC2 && predicted.type() == CV_32FC2 &&
             measured.size() == predicted.size());
   CV_Assert(depth_flow.empty() ||
@@ -261,6 +298,8 @@ cv::Mat MotionSegmenter::segment(const cv::Mat& measured, const cv::Mat& predict
             (photo_test.type() == CV_32FC1 && photo_test.size() == measured.size()));
   CV_Assert(carry_error.empty() ||
             (carry_error.type() == CV_32FC1 && carry_error.size() == measured.size()));
+  CV_Assert(occluding.empty() ||
+            (occluding.type() == CV_32FC1 && occluding.size() == measured.size()));
   const float photo_margin = static_cast<float>(params_.photometric_margin);
   const float depth_z_max = static_cast<float>(params_.depth_test_sigmas);
   const float weak = static_cast<float>(params_.weak_fraction);
@@ -349,6 +388,7 @@ cv::Mat MotionSegmenter::segment(const cv::Mat& measured, const cv::Mat& predict
       if (xb >= 0 && yb >= 0 && xb < W && yb < H) moving_b.at<uint8_t>(yb, xb) = 255;
     }
   }
+  if (!occluding.empty()) moving_b.setTo(255, occluding > depth_z_max);
   if (params_.close_px > 0) {
     const int k = 2 * params_.close_px + 1;
     cv::morphologyEx(moving_b, moving_b, cv::MORPH_CLOSE,

@@ -70,10 +70,12 @@ class MotionSegmenter {
   /// the static prediction is photometrically worse by photometric_margin (a flow that failed,
   /// at occlusions, thin structures or long flows on the ground, matches b no better).
   /// carry_error (CV_32FC1, a's size, optional, NaN: not judged): landingGreyError below of the
-  /// measured flow (see carry_grey_error).
+  /// measured flow (see carry_grey_error). occluding (CV_32FC1, b's size, optional):
+  /// depthDisagreement's occluding_b; b's pixels beyond depth_test_sigmas move, where they are,
+  /// without a flow to carry them.
   cv::Mat segment(const cv::Mat& measured, const cv::Mat& predicted, const cv::Mat& depth_flow = {},
                   const cv::Mat& depth_test = {}, const cv::Mat& photo_test = {},
-                  const cv::Mat& carry_error = {});
+                  const cv::Mat& carry_error = {}, const cv::Mat& occluding = {});
 
   /// Forgets the previous frame's components (ids are not reused).
   void reset() { previous_.release(); }
@@ -109,11 +111,14 @@ cv::Mat landingGreyError(const cv::Mat& grey_a, const cv::Mat& grey_b, const cv:
 /// background behind a pole the camera passes), or a grey value of b within 1 px of the
 /// projection no closer than max_grey_error to a's (a pose error moved a thin pole's projection
 /// off it). depth_a, depth_b CV_32FC1 (m, 0 = invalid), grey_a, grey_b CV_8UC1, all of camera's
-/// size.
+/// size. occluding_b (optional): the same z-score per pixel of b, positive where b's depth is
+/// nearer than the nearest static point of a that lands there (something moved in front of
+/// it); NaN where no point of a lands.
 cv::Mat depthDisagreement(const cv::Mat& depth_a, const cv::Mat& depth_b, const cv::Mat& grey_a,
                           const cv::Mat& grey_b, const cv::Mat& depth_flow, const SE3& T_b_a,
                           const CameraModel& camera, double sigma_a, double sigma_b,
-                          double sigma_z0, double max_grey_error = 12, int radius = 2);
+                          double sigma_z0, cv::Mat* occluding_b = nullptr,
+                          double max_grey_error = 12, int radius = 2);
 
 /// The flow a -> b (CV_32FC2 working px, a's size) the static scene makes where a's depth is
 /// measured (depth_a CV_32FC1 m, 0 = unknown; RGB-D sensor or stereo): thin structures keep

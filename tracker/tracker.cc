@@ -595,11 +595,13 @@ void Tracker::Impl::segmentMotion(const KeyframeData& ref, int64_t frame_index,
           d[x] = std::min(d[x], n[x]);
       }
     }
+    cv::Mat occluding;
     const cv::Mat depth_test =
         a.depth.empty() || depth.empty()
             ? cv::Mat()
             : depthDisagreement(a.depth, depth, a.grey, image.grey, depth_flow, T_frame_a,
-                                g.working, p.depth_sigma_a, depth_sigma_b, depth_sigma_z0);
+                                g.working, p.depth_sigma_a, depth_sigma_b, depth_sigma_z0,
+                                p.motion_occlusion_test ? &occluding : nullptr);
     // Most of the image disagreeing means the pose is wrong, not that the scene moves.
     const auto too_much = [&](const cv::Mat& instance) {
       return cv::countNonZero(instance) > p.motion_max_fraction * instance.total();
@@ -616,8 +618,8 @@ void Tracker::Impl::segmentMotion(const KeyframeData& ref, int64_t frame_index,
     const cv::Mat carry_error =
         p.motion_carry_grey_error < 255 ? landingGreyError(a.grey, image.grey, forward) : cv::Mat();
     const MotionSegmenter before = *segmenter;
-    cv::Mat instance =
-        segmenter->segment(forward, predicted, depth_flow, depth_test, photo_test, carry_error);
+    cv::Mat instance = segmenter->segment(forward, predicted, depth_flow, depth_test, photo_test,
+                                          carry_error, occluding);
     if (!depth_test.empty() && too_much(instance)) {
       // A pose that followed a large object makes the static scene disagree in depth nearly
       // everywhere (synthetic truck: 14.6 m ATE); then flow alone judges this round.

@@ -248,6 +248,9 @@ struct TrackerParams {
   // flows, which fail more: at 2 the car's IoU rises from 0.40 to 0.49 and the large truck's
   // falls from 0.85 to 0.79; at 3 the truck's falls to 0.71 (docs/tracker.md).
   int motion_min_keyframe_age = 2;
+  // With depth: pixels of the frame nearer than every static point of the judging keyframe
+  // that lands on them move where they are (depthDisagreement's occluding_b).
+  bool motion_occlusion_test = true;
   int motion_min_pixels = 400;
   int motion_class_id = 250;
   int motion_rounds = 2;                   // segment, re-align without the objects, segment again

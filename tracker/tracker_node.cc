@@ -262,6 +262,7 @@ TrackerParams loadTrackerParams(const std::string& yaml_path,
   r.get("motion_weak_fraction", &p.motion_weak_fraction);
   r.get("motion_carry_grey_error", &p.motion_carry_grey_error);
   r.get("motion_min_keyframe_age", &p.motion_min_keyframe_age);
+  r.get("motion_occlusion_test", &p.motion_occlusion_test);
   r.get("motion_min_pixels", &p.motion_min_pixels);
   r.get("motion_class_id", &p.motion_class_id);
   r.get("motion_rounds", &p.motion_rounds);

@@ -272,6 +272,53 @@ TEST(DepthDisagreement, DoesNotJudgePointsTheStaticSceneHides) {
   EXPECT_LT(largest, 4.0);
   EXPECT_FALSE(std::isnan(z.at<float>(60, 105)));  // the post
   EXPECT_FALSE(std::isnan(z.at<float>(60, 80)));   // the wall left of it
+
+  // Seen from b, the post is what the static scene puts there: it occludes nothing.
+  cv::Mat occluding;
+  depthDisagreement(depth_a, depth_b, grey, grey, cv::Mat(), T_b_a, camera, 0.0012, 0.0019, 0.4,
+                    &occluding);
+  double most = 0;
+  cv::minMaxLoc(occluding, nullptr, &most, nullptr, nullptr, occluding == occluding);
+  EXPECT_LT(most, 4.0);
+  EXPECT_FALSE(std::isnan(occluding.at<float>(60, 90)));
+}
+
+// The camera moves 0.2 m sideways along a wall 5 m away; in b a box 2 m away has moved in
+// front of it (a door swinging towards the camera). No pixel of a saw the box, so no flow
+// carries it into b, and a's wall points that land behind it have another grey there. Seen
+// from b, its pixels are nearer than every static point of a that lands on them.
+TEST(DepthDisagreement, FlagsWhatMovedInFrontOfTheStaticSceneWhereItIsInTheFrame) {
+  const CameraModel camera = smallCamera();
+  const SE3 T_b_a(SO3(), Vec3(-0.2, 0, 0));
+  const cv::Size size(160, 120);
+  const cv::Rect box(60, 40, 30, 30);
+  const cv::Mat depth_a(size, CV_32FC1, cv::Scalar(5.0));
+  cv::Mat depth_b = depth_a.clone(), grey_b(size, CV_8UC1, cv::Scalar(128));
+  depth_b(box).setTo(2.0);
+  grey_b(box).setTo(40);
+  const cv::Mat grey_a(size, CV_8UC1, cv::Scalar(128));
+  cv::Mat occluding;
+  const cv::Mat z = depthDisagreement(depth_a, depth_b, grey_a, grey_b, cv::Mat(), T_b_a, camera,
+                                      0.0012, 0.0019, 0.4, &occluding);
+  ASSERT_EQ(occluding.type(), CV_32FC1);
+  ASSERT_EQ(occluding.size(), size);
+  // 3 m against sigma_z(5 m) and sigma_z(2 m) plus the box's own depth range near its rim.
+  EXPECT_GT(occluding.at<float>(55, 75), 20.0);
+  EXPECT_LT(std::abs(occluding.at<float>(60, 20)), 1.0);   // the wall
+  EXPECT_LT(std::abs(occluding.at<float>(60, 130)), 1.0);  // the wall right of the box
+  // From a's side the wall points behind the box are not judged: their grey is the box's.
+  EXPECT_TRUE(std::isnan(z.at<float>(55, 81)));
+
+  // Segmented: without it the flow (static everywhere) finds nothing; with it, the box.
+  const cv::Mat flow(size, CV_32FC2, cv::Scalar(-6, 0));
+  const cv::Mat depth_flow(size, CV_32FC1, cv::Scalar(0.1));
+  MotionSegmenter without, with;
+  EXPECT_EQ(cv::countNonZero(without.segment(flow, flow, depth_flow, z)), 0);
+  const cv::Mat instance = with.segment(flow, flow, depth_flow, z, {}, {}, occluding);
+  EXPECT_GT(instance.at<uint16_t>(55, 75), 0);
+  EXPECT_GE(cv::countNonZero(instance(box)), 0.8 * box.area());
+  // The 5 x 5 window reaches 2 px past the box.
+  EXPECT_LE(cv::countNonZero(instance), 1.4 * box.area());
 }
 
 // A static scene flowing 3 px right. Object A (strong: it stays put) has a strip of weak evidence
