@@ -230,14 +230,12 @@ cv::Mat depthDisagreement(const cv::Mat& depth_a, const cv::Mat& depth_b, const 
   cv::erode(z_front, z_front, cv::Mat());
   // b's depth change around a pixel (a quarter of its range over 5 x 5 px): pose errors on
   // slanted surfaces and at depth edges. NaN next to a hole.
+  cv::Mat lo_b, hi_b;
+  const cv::Mat box = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(5, 5));
+  cv::erode(depth_b, lo_b, box);
+  cv::dilate(depth_b, hi_b, box);
   const auto slope_sigma = [&](int xb, int yb) {
-    float lo = INFINITY, hi = 0;
-    for (int dy = -2; dy <= 2; ++dy)
-      for (int dx = -2; dx <= 2; ++dx) {
-        const float z = depth_b.at<float>(yb + dy, xb + dx);
-        lo = std::min(lo, z);
-        hi = std::max(hi, z);
-      }
+    const float lo = lo_b.at<float>(yb, xb), hi = hi_b.at<float>(yb, xb);
     return lo > 0 ? 0.25 * (hi - lo) : NAN;
   };
   const auto total_sigma = [&](double z_a, double z_b, double s_px) {
