@@ -302,7 +302,7 @@ TEST(DepthDisagreement, FlagsWhatMovedInFrontOfTheStaticSceneWhereItIsInTheFrame
                                       0.0012, 0.0019, 0.4, &occluding);
   ASSERT_EQ(occluding.type(), CV_32FC1);
   ASSERT_EQ(occluding.size(), size);
-  // 3 m against sigma_z(5 m) and sigma_z(2 m) plus the box's own depth range near its rim.
+  // Inside the box: 3 m against sigma_z(5 m) and sigma_z(2 m), far beyond 4.
   EXPECT_GT(occluding.at<float>(55, 75), 20.0);
   EXPECT_LT(std::abs(occluding.at<float>(60, 20)), 1.0);   // the wall
   EXPECT_LT(std::abs(occluding.at<float>(60, 130)), 1.0);  // the wall right of the box
