@@ -379,15 +379,17 @@ void Tracker::Impl::track(const Frame& frame, const PreparedImage& image, Tracke
   const auto t_flow = Clock::now();
   const cv::Mat predicted = reprojectKeyframe(g.grid, ref.ba, T_pred, p.min_depth_ratio);
   const cv::Mat init = predictedFlow(predicted, g);
-  // The frame has no depth to predict the backward flow: the negated forward prediction is
-  // close wherever the flow is smooth.
-  const cv::Mat init_back = init.empty() ? cv::Mat() : cv::Mat(-init);
   // Without the dataset's masks motion segmentation judges this flow (against its keyframe's
   // own segmented objects too), so there it must show the objects move.
   const bool segmenting = segmenter && image.class_id.empty();
+  const bool painting = !segmenting && !(ref.moving.empty() && moving.empty());
+  // The frame has no depth to predict the backward flow: the negated forward prediction is
+  // close wherever the flow is smooth. Only the backward flow and the painting use it.
+  const cv::Mat init_back =
+      (p.frame_backward_flow || painting) && !init.empty() ? cv::Mat(-init) : cv::Mat();
   const auto [dis_ref, dis_frame] =
-      segmenting ? std::make_pair(ref.grey, image.grey)
-                 : paintOutMoving(ref.grey, ref.moving, image.grey, moving, init, init_back);
+      painting ? paintOutMoving(ref.grey, ref.moving, image.grey, moving, init, init_back)
+               : std::make_pair(ref.grey, image.grey);
   const cv::Mat forward = flow.compute(dis_ref, dis_frame, init, frame_warm_start);
   cv::Mat backward;
   if (p.frame_backward_flow) backward = flow.compute(dis_frame, dis_ref, init_back);
